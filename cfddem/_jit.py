@@ -1,0 +1,61 @@
+"""The one place that holds the numba flags and the cache policy.
+
+Every compiled kernel in cfddem is decorated with :func:`kernel` (serial) or
+:func:`parallel_kernel` (one ``prange`` loop).  The flags are chosen once here:
+
+* ``cache``: on by default so that a second run starts in seconds; set
+  ``CFDDEM_NUMBA_CACHE=0`` to switch it off (CI starts from an empty
+  ``NUMBA_CACHE_DIR``).  Kernels take arrays and scalars only: constants are passed
+  as arguments because numba freezes globals into the cache.
+* ``fastmath``: off.  It would let LLVM drop the NaN checks the kernels rely on to
+  report blow-ups.
+* ``error_model="numpy"``: division by zero gives inf/nan instead of raising, so no
+  exception machinery inside kernels.
+* ``boundscheck``: off, except when ``CFDDEM_BOUNDSCHECK=1`` (debugging).
+
+``NUMBA_DISABLE_JIT=1`` runs every kernel as plain Python (slow, for debugging and
+for a test tier).
+"""
+
+from __future__ import annotations
+
+import os
+
+import numba
+from numba import prange  # noqa: F401  (re-exported for kernel modules)
+
+CACHE = os.environ.get("CFDDEM_NUMBA_CACHE", "1") != "0"
+BOUNDSCHECK = os.environ.get("CFDDEM_BOUNDSCHECK", "0") == "1"
+
+FLAGS = dict(cache=CACHE, fastmath=False, error_model="numpy", nogil=True, boundscheck=BOUNDSCHECK)
+PARALLEL_FLAGS = dict(FLAGS, parallel=True)
+
+
+def kernel(fn=None, **extra):
+    """Decorate a serial compiled function (``@kernel`` or ``@kernel(inline="always")``)."""
+    flags = dict(FLAGS, **extra)
+    if fn is None:
+        return lambda f: numba.njit(**flags)(f)
+    return numba.njit(**flags)(fn)
+
+
+def parallel_kernel(fn=None, **extra):
+    """Decorate a compiled function holding one ``prange`` loop."""
+    flags = dict(PARALLEL_FLAGS, **extra)
+    if fn is None:
+        return lambda f: numba.njit(**flags)(f)
+    return numba.njit(**flags)(fn)
+
+
+def set_threads(n: int | None) -> int:
+    """Set the numba thread count (0 or None: all available); return the count in use."""
+    maxt = numba.config.NUMBA_NUM_THREADS
+    if not n:
+        n = maxt
+    n = max(1, min(int(n), maxt))
+    numba.set_num_threads(n)
+    return n
+
+
+def get_threads() -> int:
+    return numba.get_num_threads()
