@@ -1,0 +1,117 @@
+"""Command-line interface: a thin layer over the Python API.
+
+    cfddem run CASE [--out DIR] [--set K=V]... [--end-time T] [--overwrite] [--threads N] [--force]
+    cfddem check CASE [--set K=V]...
+    cfddem report OUT
+
+Exit codes: 0 success, 2 bad input (one line on stderr), 3 a run that failed (blow-up or solver
+failure, with its message).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from .errors import CaseError, CfddemError, RunError
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # one line, exit code 2
+        print(f"cfddem: error: {message}", file=sys.stderr)
+        raise SystemExit(2)
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="cfddem", description="Coupled CFD-DEM for granular flows")
+    from . import __version__
+
+    p.add_argument("--version", action="version", version=f"cfddem {__version__}")
+    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    r = sub.add_parser("run", help="run a case")
+    r.add_argument("case", help="case folder (holding case.toml) or a case.toml file")
+    r.add_argument("--out", help="output folder (default: CASE/output)")
+    r.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a case key, e.g. --set particles.diameter=0.004 (value parsed as TOML)")
+    r.add_argument("--end-time", type=float, help="stop at this simulated time (s), overriding time.end_time")
+    r.add_argument("--overwrite", action="store_true", help="replace an existing run folder")
+    r.add_argument("--threads", type=int, help="numba threads (default: time.threads, 0 = all cores)")
+    r.add_argument("--force", action="store_true", help="run even when dt > t_c/5")
+    r.add_argument("--quiet", action="store_true", help="no progress line, log to file only")
+
+    c = sub.add_parser("check", help="validate a case and print its derived numbers")
+    c.add_argument("case")
+    c.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
+
+    rep = sub.add_parser("report", help="(re)write the PNG plots of a finished run")
+    rep.add_argument("out", help="a run folder (holding results.h5)")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        return _dispatch(args)
+    except CaseError as e:
+        print(f"cfddem: error: {e}", file=sys.stderr)
+        return 2
+    except RunError as e:
+        print(f"cfddem: run failed: {e}", file=sys.stderr)
+        return 3
+    except CfddemError as e:
+        print(f"cfddem: error: {e}", file=sys.stderr)
+        return e.exit_code
+    except KeyboardInterrupt:
+        print("cfddem: interrupted", file=sys.stderr)
+        return 130
+
+
+def _dispatch(args) -> int:
+    from .config import load_case
+
+    if args.command == "check":
+        from .simulation import check_time_step, describe_case
+
+        case = load_case(args.case, overrides=args.overrides)
+        print(f"case {case.name}: OK")
+        for line in describe_case(case):
+            print("  " + line)
+        ratio = check_time_step(case)
+        if ratio > 0.05:
+            print(f"cfddem: warning: time.dt is {ratio * 20:.1f} t_c/20: collisions resolved by fewer than 20 steps",
+                  file=sys.stderr)
+        return 0
+    if args.command == "run":
+        from .simulation import Simulation
+
+        overrides = list(args.overrides)
+        if args.force:
+            overrides.append("time.force=true")
+        if args.end_time is not None:
+            overrides.append(f"time.end_time={args.end_time!r}")
+        case = load_case(args.case, overrides=overrides)
+        sim = Simulation(case, out_dir=args.out, overwrite=args.overwrite,
+                         threads=args.threads, echo=not args.quiet, progress=not args.quiet)
+        summary = sim.run()
+        print(f"cfddem: {summary.status}: t = {summary.time:.4g} s, {summary.steps} steps, "
+              f"{summary.wall_time:.1f} s wall; results in {summary.out_dir}")
+        return 0
+    if args.command == "report":
+        from pathlib import Path
+
+        from .report.plots import write_run_report
+
+        out = Path(args.out)
+        h5 = out / "results.h5"
+        if not h5.exists():
+            raise CaseError("OUT", f"no results.h5 in {out}")
+        files = write_run_report(h5, out / "report")
+        for f in files:
+            print(f)
+        return 0
+    raise AssertionError(args.command)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,186 @@
+"""From a validated case to the physical scene: gravity, frame rotation, walls, contact laws,
+initial particles.  Pure set-up code shared by the :class:`~cfddem.simulation.Simulation` and
+``cfddem check``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .config import Case
+from .errors import CaseError
+
+
+def gravity_vector(case: Case) -> np.ndarray:
+    """g (0, -cos theta, sin theta): chute axes x across, y normal to the floor, z downstream."""
+    th = math.radians(case.gravity.inclination_deg)
+    return case.gravity.g * np.array([0.0, -math.cos(th), math.sin(th)])
+
+
+def frame_omega(case: Case) -> np.ndarray:
+    """Frame angular velocity: rpm * 2 pi / 60 about the vertical (against gravity)."""
+    rpm = case.frame.rpm
+    if rpm == 0.0:
+        return np.zeros(3)
+    g = gravity_vector(case)
+    up = -g / np.linalg.norm(g)
+    return rpm * 2.0 * math.pi / 60.0 * up
+
+
+@dataclass
+class WallSpec:
+    """A wall as the case describes it (converted to the engine's wall objects by the caller)."""
+
+    name: str
+    kind: str  # "plane" | "rectangle"
+    point: np.ndarray
+    normal: np.ndarray
+    u_axis: np.ndarray | None = None
+    half_extents: tuple[float, float] | None = None
+    params: dict | None = None  # k_n, e_n, e_t, mu, mu_r
+
+    def corners(self, size: float = 1.0) -> np.ndarray:
+        """Four corners (for drawing); planes are drawn as a square of side 2*size."""
+        n = self.normal / np.linalg.norm(self.normal)
+        if self.u_axis is not None:
+            u = self.u_axis - np.dot(self.u_axis, n) * n
+        else:
+            t = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+            u = t - np.dot(t, n) * n
+        u /= np.linalg.norm(u)
+        v = np.cross(n, u)
+        a, b = self.half_extents if self.half_extents is not None else (size, size)
+        c = self.point
+        return np.array([c - a * u - b * v, c + a * u - b * v, c + a * u + b * v, c - a * u + b * v])
+
+
+def wall_specs(case: Case) -> list[WallSpec]:
+    geo = case.geometry
+    pw = case.resolved["contact"]["particle_wall"]
+    walls: list[WallSpec] = []
+    if geo.type == "chute":
+        W, H, L, z0 = geo.width, geo.depth, geo.length, geo.z_start
+        zc = z0 + 0.5 * L
+        walls.append(WallSpec("floor", "rectangle", np.array([0.5 * W, 0.0, zc]), np.array([0.0, 1.0, 0.0]),
+                              np.array([1.0, 0.0, 0.0]), (0.5 * W, 0.5 * L)))
+        walls.append(WallSpec("left", "rectangle", np.array([0.0, 0.5 * H, zc]), np.array([1.0, 0.0, 0.0]),
+                              np.array([0.0, 1.0, 0.0]), (0.5 * H, 0.5 * L)))
+        walls.append(WallSpec("right", "rectangle", np.array([W, 0.5 * H, zc]), np.array([-1.0, 0.0, 0.0]),
+                              np.array([0.0, 1.0, 0.0]), (0.5 * H, 0.5 * L)))
+        if geo.back_wall:
+            walls.append(WallSpec("back", "rectangle", np.array([0.5 * W, 0.5 * H, z0]), np.array([0.0, 0.0, 1.0]),
+                                  np.array([1.0, 0.0, 0.0]), (0.5 * W, 0.5 * H)))
+    elif geo.type == "box":
+        lo, hi = np.array(geo.lo), np.array(geo.hi)
+        names = ("x", "y", "z")
+        for ax in range(3):
+            if geo.periodic[ax]:
+                continue
+            for side, pt in (("-", lo), ("+", hi)):
+                n = np.zeros(3)
+                n[ax] = 1.0 if side == "-" else -1.0
+                p = 0.5 * (lo + hi)
+                p[ax] = pt[ax]
+                walls.append(WallSpec(f"{names[ax]}{side}", "plane", p, n))
+    for i, w in enumerate(geo.walls):
+        params = {k: float(w[k]) for k in ("k_n", "e_n", "e_t", "mu", "mu_r") if k in w}
+        spec = WallSpec(w.get("name", f"wall{i}"), w["type"], np.array(w["point"], float),
+                        np.array(w["normal"], float),
+                        np.array(w["u_axis"], float) if "u_axis" in w else None,
+                        tuple(w["half_extents"]) if "half_extents" in w else None, params)
+        if spec.kind == "rectangle":
+            n = spec.normal / np.linalg.norm(spec.normal)
+            u = spec.u_axis
+            if np.linalg.norm(u - np.dot(u, n) * n) < 1e-9 * np.linalg.norm(u):
+                raise CaseError(f"geometry.walls[{i}].u_axis", "must not be parallel to the normal")
+        walls.append(spec)
+    for w in walls:
+        full = dict(pw)
+        full.update(w.params or {})
+        w.params = full
+    return walls
+
+
+def walls_bounding_box(walls: list[WallSpec], case: Case) -> tuple[np.ndarray, np.ndarray]:
+    """Bounding box of the scene (for lost-particle detection): rectangles' corners, box limits."""
+    pts = [w.corners() for w in walls if w.kind == "rectangle"]
+    geo = case.geometry
+    if geo.type == "box":
+        pts.append(np.array([geo.lo, geo.hi], float))
+    if geo.type == "chute":
+        pts.append(np.array([[0, 0, geo.z_start], [geo.width, geo.depth, geo.z_start + geo.length]], float))
+    if not pts:
+        return np.full(3, -np.inf), np.full(3, np.inf)
+    allp = np.concatenate(pts)
+    return allp.min(axis=0), allp.max(axis=0)
+
+
+def initial_particles(case: Case) -> dict[str, np.ndarray]:
+    """Initial particles from [[particles.initial]] and/or particles.initial_file."""
+    d = case.particles.diameter
+    pos, vel, om, rad = [], [], [], []
+    for t in case.particles.initial:
+        pos.append(t["pos"])
+        vel.append(t.get("vel", [0.0, 0.0, 0.0]))
+        om.append(t.get("omega", [0.0, 0.0, 0.0]))
+        rad.append(float(t.get("radius", d / 2)))
+    if case.particles.initial_file:
+        f = case.path / case.particles.initial_file
+        data = read_particle_file(f)
+        pos.extend(data["pos"].tolist())
+        vel.extend(data["vel"].tolist())
+        om.extend(data["omega"].tolist())
+        rad.extend(data["radius"].tolist())
+    out = {
+        "pos": np.array(pos, float).reshape(-1, 3),
+        "vel": np.array(vel, float).reshape(-1, 3),
+        "omega": np.array(om, float).reshape(-1, 3),
+        "radius": np.array(rad, float),
+    }
+    return out
+
+
+def read_particle_file(f) -> dict[str, np.ndarray]:
+    """CSV (header x,y,z,vx,vy,vz,wx,wy,wz,radius; velocities/spins optional) or HDF5."""
+    key = "particles.initial_file"
+    try:
+        if f.suffix.lower() == ".csv":
+            arr = np.genfromtxt(f, delimiter=",", names=True, dtype=float)
+            names = arr.dtype.names or ()
+            arr = np.atleast_1d(arr)
+            for c in ("x", "y", "z", "radius"):
+                if c not in names:
+                    raise CaseError(key, f"{f.name}: missing column '{c}' (need x,y,z,radius; optional vx,vy,vz,wx,wy,wz)")
+
+            def col(c):
+                return arr[c] if c in names else np.zeros(len(arr))
+
+            pos = np.stack([col("x"), col("y"), col("z")], axis=1)
+            vel = np.stack([col("vx"), col("vy"), col("vz")], axis=1)
+            om = np.stack([col("wx"), col("wy"), col("wz")], axis=1)
+            rad = col("radius")
+        else:
+            import h5py
+
+            with h5py.File(f, "r") as h:
+                if "pos" not in h or "radius" not in h:
+                    raise CaseError(key, f"{f.name}: needs datasets 'pos' (n,3) and 'radius' (n,)")
+                pos = np.asarray(h["pos"], float).reshape(-1, 3)
+                rad = np.asarray(h["radius"], float).ravel()
+                vel = np.asarray(h["vel"], float).reshape(-1, 3) if "vel" in h else np.zeros_like(pos)
+                om = np.asarray(h["omega"], float).reshape(-1, 3) if "omega" in h else np.zeros_like(pos)
+    except CaseError:
+        raise
+    except (OSError, ValueError) as e:
+        raise CaseError(key, f"cannot read {f.name}: {e}") from None
+    n = len(pos)
+    if not (len(rad) == len(vel) == len(om) == n):
+        raise CaseError(key, f"{f.name}: columns have different lengths")
+    if not np.all(np.isfinite(pos)) or not np.all(np.isfinite(rad)):
+        raise CaseError(key, f"{f.name}: non-finite positions or radii")
+    if n and rad.min() <= 0:
+        raise CaseError(key, f"{f.name}: radius must be positive (row {int(np.argmin(rad))})")
+    return {"pos": pos, "vel": vel, "omega": om, "radius": rad}
