@@ -1,0 +1,221 @@
+"""Chute measurements on hand-built particle configurations with exactly known answers."""
+
+import math
+
+import numpy as np
+import pytest
+
+from cfddem.errors import CaseError
+from cfddem.io.results import ResultsFile, read_measurements
+from cfddem.measure.chute import (ChuteMeasurements, MeasurementCells, TimeAverager,
+                                  bed_height_cells, bed_height_sensors, default_slices,
+                                  depth_profiles, mean_streamwise_velocity, sphere_volume_below,
+                                  surface_velocity_cells)
+
+W = 0.08
+R = 0.0015
+
+
+def test_cells_for_chute():
+    c = MeasurementCells.for_chute(W, (0.0, 0.9))
+    assert c.shape == (16, 150)
+    assert c.dx == pytest.approx(0.005) and c.z_edges[-1] == pytest.approx(0.9)
+    np.testing.assert_allclose(c.x_centres[:2], [0.0025, 0.0075])
+    idx = c.cell_index(np.array([[0.0001, 0.01, 0.0001], [0.0799, 0, 0.8999], [-1e-4, 0, 0.1],
+                                 [0.01, 0, 0.9]]))
+    assert idx.tolist() == [0, 15 * 150 + 149, -1, -1]
+    with pytest.raises(CaseError):
+        MeasurementCells.for_chute(W, (0.5, 0.1))
+
+
+def _layer(heights, c):
+    """One particle at the centre of every cell, the top at heights[i, k] (+ extra lower ones)."""
+    X, Z = np.meshgrid(c.x_centres, c.z_centres, indexing="ij")
+    top = np.asarray(heights)
+    pos = np.column_stack([X.ravel(), (top - R).ravel(), Z.ravel()])
+    below = pos.copy()
+    below[:, 1] = R                       # a floor particle underneath in every cell
+    return np.vstack([pos, below]), np.full(2 * pos.shape[0], R)
+
+
+def test_bed_height_cells_layer_and_empty():
+    c = MeasurementCells.for_chute(W, (0.0, 0.06))
+    rng = np.random.default_rng(3)
+    h = 0.004 + 0.02 * rng.random(c.shape)
+    pos, rad = _layer(h, c)
+    np.testing.assert_allclose(bed_height_cells(pos, rad, c), h, rtol=0, atol=1e-15)
+    # drop every particle of cell (3, 4): NaN by default, the given value otherwise
+    keep = c.cell_index(pos) != 3 * c.nz + 4
+    b = bed_height_cells(pos[keep], rad[keep], c)
+    assert np.isnan(b[3, 4]) and np.isfinite(np.delete(b.ravel(), 3 * c.nz + 4)).all()
+    assert bed_height_cells(pos[keep], rad[keep], c, empty=0.0)[3, 4] == 0.0
+
+
+def test_bed_height_sensors_uniform_and_linear():
+    c = MeasurementCells.for_chute(W, (0.0, 0.3))
+    flat = np.full(c.shape, 0.012)
+    s = bed_height_sensors(flat, c, sensor_z=[0.05, 0.1, 0.2])
+    assert s.shape == (3, 3)
+    np.testing.assert_allclose(s, 0.012, rtol=1e-14)
+    # a bed linear in x and z: the centred 5x5 rectangle average is the value at the sensor
+    a, bx, bz = 0.01, 0.1, -0.02
+    lin = a + bx * c.x_centres[:, None] + bz * c.z_centres[None, :]
+    zs = np.array([0.05, 0.123, 0.2])
+    s = bed_height_sensors(lin, c, sensor_z=zs)
+    expect = a + bx * np.array([0.015, 0.045, 0.065])[:, None] + bz * zs[None, :]
+    np.testing.assert_allclose(s, expect, rtol=1e-12)
+    # a NaN cell is left out; a sensor whose cells are all NaN gives NaN
+    lin[2, :] = np.nan
+    assert np.isfinite(bed_height_sensors(lin, c, sensor_z=zs)).all()
+    assert np.isnan(bed_height_sensors(np.full(c.shape, np.nan), c, sensor_z=zs)).all()
+
+
+def test_bed_height_sensor_block_weights():
+    """Sensor at x = 0.015 sits on a cell edge: cells 0 and 5 count half, cells 1..4 fully."""
+    c = MeasurementCells.for_chute(W, (0.0, 0.3))
+    h = np.zeros(c.shape)
+    h[0, :] = 1.0
+    s = bed_height_sensors(h, c, sensor_x=[0.015], sensor_z=[0.15])
+    assert s[0, 0] == pytest.approx(0.5 / 5.0, rel=1e-12)
+
+
+def test_surface_velocity_six_highest():
+    c = MeasurementCells.for_chute(W, (0.0, 0.06))
+    # 10 particles in cell (2, 3) at distinct heights, velocities known
+    x, z = c.x_centres[2], c.z_centres[3]
+    y = np.array([0.001, 0.009, 0.003, 0.007, 0.005, 0.010, 0.002, 0.008, 0.004, 0.006]) + 0.01
+    vz = np.arange(10, dtype=float)
+    vx = -2.0 * np.arange(10, dtype=float)
+    pos = np.column_stack([np.full(10, x), y, np.full(10, z)])
+    vel = np.column_stack([vx, np.zeros(10), vz])
+    # 3 particles in cell (5, 0)
+    pos = np.vstack([pos, [[c.x_centres[5], 0.002, c.z_centres[0]]] * 3])
+    vel = np.vstack([vel, [[0.1, 0, 1.0], [0.2, 0, 2.0], [0.3, 0, 3.0]]])
+    rad = np.full(len(pos), R)
+    rad[0] = 0.02          # the lowest centre, but its top y + r is the highest
+    svz, svx, n = surface_velocity_cells(pos, vel, rad, c, n_top=6)
+    top6 = np.argsort(-(y + rad[:10]))[:6]
+    assert 0 in top6
+    assert svz[2, 3] == pytest.approx(vz[top6].mean()) and svx[2, 3] == pytest.approx(vx[top6].mean())
+    assert n[2, 3] == 6 and n[5, 0] == 3
+    assert svz[5, 0] == pytest.approx(2.0) and svx[5, 0] == pytest.approx(0.2)
+    assert np.isnan(svz).sum() == svz.size - 2 and n.sum() == 9
+
+
+def test_mean_streamwise_velocity():
+    pos = np.array([[0.01, 0.0, 0.05], [0.02, 0.01, 0.07], [0.03, 0.0, 0.15], [0.0, 0.0, 0.5]])
+    vel = np.array([[0, 0, 1.0], [0, 0, 2.0], [0, 0, 4.0], [0, 0, 9.0]])
+    m, n = mean_streamwise_velocity(pos, vel, [0.0, 0.1, 0.2, 0.3])
+    np.testing.assert_allclose(m[:2], [1.5, 4.0])
+    assert np.isnan(m[2]) and n.tolist() == [2, 1, 0]
+
+
+def test_sphere_volume_below():
+    r = np.array([0.002])
+    assert sphere_volume_below(r, np.array([-1.0]))[0] == 0.0
+    assert sphere_volume_below(r, np.array([0.0]))[0] == pytest.approx(2 / 3 * math.pi * 0.002 ** 3)
+    assert sphere_volume_below(r, np.array([1.0]))[0] == pytest.approx(4 / 3 * math.pi * 0.002 ** 3)
+
+
+def _simple_cubic(nx, ny, nz, d, x0=0.0, z0=0.0):
+    i, j, k = np.meshgrid(np.arange(nx), np.arange(ny), np.arange(nz), indexing="ij")
+    pos = np.column_stack([x0 + (i.ravel() + 0.5) * d, (j.ravel() + 0.5) * d, z0 + (k.ravel() + 0.5) * d])
+    return pos, j.ravel()
+
+
+def test_depth_profile_simple_cubic_is_pi_over_6():
+    d = 2 * R
+    pos, layer = _simple_cubic(26, 8, 40, d)          # 0.078 wide, 0.024 high, 0.12 long
+    vel = np.zeros_like(pos)
+    vel[:, 2] = 0.1 * (layer + 1)                     # a shear profile, one velocity per layer
+    rad = np.full(len(pos), R)
+    slices = {"a": (0.0, 8 * d), "b": (5 * d, 13 * d)}  # whole lattice periods
+    y_edges = np.arange(0, 10 * d + 1e-12, d / 2)     # half-diameter bins, two above the bed
+    prof = depth_profiles(pos, vel, rad, slices, (10 * d, 30 * d), y_edges)
+    for name in slices:
+        phi = prof[name]["phi"]
+        # exact in y, centre assignment in x and z with whole periods: pi/6 to round-off
+        np.testing.assert_allclose(phi[:16], math.pi / 6, rtol=1e-12)
+        np.testing.assert_allclose(phi[16:], 0.0, atol=1e-15)
+        np.testing.assert_allclose(prof[name]["vz"][:16], 0.1 * (np.arange(16) // 2 + 1), rtol=1e-12)
+        assert np.isnan(prof[name]["vz"][16:]).all()
+
+
+def test_depth_profile_misaligned_window_error_is_edge_noise():
+    """With a slice that is not a whole number of periods the error is bounded by the
+    particles whose centre-assignment flips: at most one row of spheres per slice edge."""
+    d = 2 * R
+    pos, _ = _simple_cubic(26, 8, 40, d)
+    rad = np.full(len(pos), R)
+    x_lo, x_hi = 1.3 * d, 9.9 * d                     # 8.6 periods wide; assigned: 8 or 9 columns
+    prof = depth_profiles(pos, np.zeros_like(pos), rad, {"s": (x_lo, x_hi)}, (10 * d, 30 * d),
+                          [0.0, 8 * d])
+    phi = prof["s"]["phi"][0]
+    n_cols = np.sum((np.arange(26) + 0.5) * d >= x_lo) - np.sum((np.arange(26) + 0.5) * d >= x_hi)
+    assert phi == pytest.approx(math.pi / 6 * n_cols * d / (x_hi - x_lo), rel=1e-12)
+    assert abs(phi - math.pi / 6) <= math.pi / 6 * d / (x_hi - x_lo) + 1e-12
+
+
+def test_default_slices():
+    s = default_slices(W)
+    assert s["left"] == (0.0, 0.025) and s["right"] == (0.055, 0.08)
+    assert s["centre"] == pytest.approx((0.0275, 0.0525)) and s["left_half"] == (0.0, 0.04)
+
+
+def test_time_averager_nan_weights_start_state():
+    av = TimeAverager(start_time=1.0)
+    assert not av.add(0.5, "a", [100.0, 100.0])
+    av.add(1.0, "a", [1.0, np.nan])
+    av.add(1.5, "a", [3.0, 4.0], weight=[3.0, 2.0])
+    av.add(2.0, "a", [np.nan, 6.0], weight=[1.0, 0.0])
+    np.testing.assert_allclose(av.mean("a"), [(1 + 9) / 4, 4.0])
+    assert av.n_samples("a") == 3 and av.first_time == 1.0 and av.last_time == 2.0
+    av.add(2.0, "b", [np.nan])
+    assert np.isnan(av.mean("b")[0])
+    other = TimeAverager()
+    other.set_state(av.get_state())
+    np.testing.assert_array_equal(other.mean("a"), av.mean("a"))
+    assert other.start_time == 1.0 and other.n_samples("a") == 3
+    with pytest.raises(ValueError):
+        av.add(3.0, "a", [1.0, 2.0, 3.0])
+
+
+def _flow(rng, n=4000, length=0.3):
+    pos = np.column_stack([rng.uniform(R, W - R, n), rng.uniform(R, 0.02, n), rng.uniform(0, length, n)])
+    vel = np.column_stack([rng.normal(0, 0.1, n), np.zeros(n), 1.0 + 10 * pos[:, 1]])
+    return pos, vel, np.full(n, R)
+
+
+def test_chute_measurements_steady_state_and_restart(tmp_path):
+    rng = np.random.default_rng(7)
+    pos, vel, rad = _flow(rng)
+    cm = ChuteMeasurements(W, (0.0, 0.3), start_time=0.1, stations=(0.05, 0.2))
+    assert not cm.measure(0.0, pos, vel, rad)
+    assert cm.results() == {"n_samples": 0}
+    for t in (0.1, 0.2, 0.3):
+        assert cm.measure(t, pos, vel, rad)
+    r = cm.results()
+    assert r["n_samples"] == 3 and r["t_first"] == 0.1 and r["t_last"] == 0.3
+    c = cm.cells
+    # a steady state averages to the instantaneous values
+    np.testing.assert_allclose(r["bed_height_cells"], bed_height_cells(pos, rad, c, empty=0.0))
+    vz, vx, _ = surface_velocity_cells(pos, vel, rad, c)
+    np.testing.assert_allclose(r["surface_vz"], vz)
+    np.testing.assert_allclose(r["surface_vx"], vx)
+    np.testing.assert_allclose(r["mean_vz"], mean_streamwise_velocity(pos, vel, c.z_edges)[0])
+    assert r["bed_height_sensor"].shape == (3, c.nz)
+    assert r["profile_whole_phi"].shape == (2, 30) and r["profile_left_vz"].shape == (2, 30)
+    prof = depth_profiles(pos, vel, rad, default_slices(W), (0.185, 0.215), cm.y_edges)
+    np.testing.assert_allclose(r["profile_centre_phi"][1], prof["centre"]["phi"])
+    # the surface is faster than the mean, as the synthetic profile says
+    assert np.nanmean(r["surface_vz"]) > np.nanmean(r["mean_vz"])
+    # checkpoint/restart gives identical averages
+    cm2 = ChuteMeasurements(W, (0.0, 0.3), start_time=0.1, stations=(0.05, 0.2))
+    cm2.set_state(cm.get_state())
+    for k, v in cm2.results().items():
+        np.testing.assert_array_equal(v, r[k])
+    # stored and read back
+    with ResultsFile(tmp_path / "r.h5") as rf:
+        rf.write_measurements(cm.group, r, cm.attrs())
+    back = read_measurements(tmp_path / "r.h5")["chute"]
+    np.testing.assert_array_equal(back["surface_vz"], r["surface_vz"])
