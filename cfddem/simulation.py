@@ -11,8 +11,8 @@ Python API (the CLI is a thin layer over it)::
 
 from __future__ import annotations
 
+import json
 import math
-import os
 import shutil
 import time as _time
 from dataclasses import asdict, dataclass, field
@@ -359,8 +359,6 @@ class Simulation:
         res.write_metadata(status=status, message=message, wall_time=wall, steps=s.step_count,
                            **{f"time_{k}": v for k, v in timings.items()})
         res.close()
-        import json
-
         (self.out / RUN_MARKER).write_text(json.dumps({"program": "cfddem", "version": __version__,
                                                        "case": self.case.name, **summary.to_dict()}, indent=1))
         self.log.info("%s at t = %.6g s after %d steps, %.1f s wall (%s)", status, s.time, s.step_count, wall,
@@ -391,13 +389,14 @@ def contact_law(params: dict):
 
 
 def engine_wall(w):
-    from .particles import walls as W
+    """The engine's wall object for a :class:`~cfddem.scene.WallSpec`."""
+    from .particles.walls import PlaneWall, RectangleWall
 
     law = contact_law(w.params)
     if w.kind == "plane":
-        return W.Plane(point=w.point, normal=w.normal, contact=law, name=w.name)
-    return W.Rectangle(center=w.point, normal=w.normal, u_axis=w.u_axis, half_extents=w.half_extents, contact=law,
-                       name=w.name)
+        return PlaneWall(contact=law, name=w.name, point=tuple(w.point), normal=tuple(w.normal))
+    return RectangleWall(contact=law, name=w.name, point=tuple(w.point), normal=tuple(w.normal),
+                         axis1=tuple(w.u_axis), half1=w.half_extents[0], half2=w.half_extents[1])
 
 
 def particle_mass(case: Case, diameter: float | None = None) -> float:

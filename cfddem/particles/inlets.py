@@ -9,11 +9,11 @@ downstream at the speed that carries the prescribed mass rate:
 
 where a is the bcc cube side, n_cell the particles per lattice period along z (one corner layer
 plus one body-centre layer) and m_p the particle mass.  A new layer (corner and body-centre
-layers alternate, a/2 apart) enters whenever the lattice has advanced by a/2; its position
-accounts for the fraction of a step by which the insertion is late, so the feed is exactly
-periodic in space.  A layer is inserted only if none of its spheres overlaps a particle already
-there (or another new one); otherwise it waits, and the delay is recorded (``backlog``), so the
-inlet never creates overlaps.  Monodisperse feed (the chute case); the lattice uses the largest
+layers alternate, a/2 apart) enters at the insertion plane whenever the lattice has advanced by
+a/2 (the Simulation makes these due times events, so layers enter on time to within one step).
+A layer is inserted only if none of its spheres overlaps a particle already there; otherwise it
+waits, and the delay is recorded (``backlog_time``), so the inlet never creates overlaps and the
+mass fed never exceeds the prescribed rate.  Monodisperse feed (the chute case); the lattice uses the largest
 diameter when particles are polydisperse.
 """
 
@@ -93,11 +93,10 @@ class SluiceInlet:
         return (self.start_time <= time < self.end_time + 1e-15
                 and time + 1e-15 >= self._due_time(self.layers_done))
 
-    def layer(self, k: int, time: float) -> np.ndarray:
-        """Positions (n, 3) of layer k at ``time`` (advanced by the lateness, at most a/2)."""
+    def layer(self, k: int) -> np.ndarray:
+        """Positions (n, 3) of layer k at the insertion plane."""
         xy = self.lattice.corner if k % 2 == 0 else self.lattice.centre
-        late = min(max(time - self._due_time(k), 0.0) * self.velocity, 0.5 * self.lattice.a)
-        z = self.z_insert + late
+        z = self.z_insert
         out = np.empty((len(xy), 3))
         out[:, 0] = xy[:, 0]
         out[:, 1] = xy[:, 1]
@@ -108,7 +107,7 @@ class SluiceInlet:
         """Insert every layer that is due and has room; return the number of particles added."""
         added = 0
         while self.due(time):
-            pos = self.layer(self.layers_done, time)
+            pos = self.layer(self.layers_done)
             rad = np.full(len(pos), self.radius)
             if len(pos) and system.overlaps(pos, rad).any():
                 self.backlog_time += dt
