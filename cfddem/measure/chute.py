@@ -305,6 +305,9 @@ class TimeAverager:
         return st
 
     def set_state(self, state: dict) -> None:
+        """Restore from :meth:`get_state`'s dict, or from the same keys read back from
+        HDF5 as nested groups (``{"sum": {"a": ...}}`` is the same as ``{"sum/a": ...}``)."""
+        state = _flatten(state)
         self.start_time = float(state["start_time"])
         self.first_time = float(state["first_time"])
         self.last_time = float(state["last_time"])
@@ -315,6 +318,16 @@ class TimeAverager:
                 self._sum[k] = np.array(v, dtype=np.float64)
                 self._w[k] = np.array(state[f"weight/{k}"], dtype=np.float64)
                 self._n[k] = int(state[f"samples/{k}"])
+
+
+def _flatten(d: dict, prefix: str = "") -> dict:
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out.update(_flatten(v, f"{prefix}{k}/"))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
 
 
 # ---------------------------------------------------------------------- the chute set

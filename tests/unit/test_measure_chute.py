@@ -214,6 +214,17 @@ def test_chute_measurements_steady_state_and_restart(tmp_path):
     cm2.set_state(cm.get_state())
     for k, v in cm2.results().items():
         np.testing.assert_array_equal(v, r[k])
+    # checkpoint through HDF5 (slashes in the state keys become nested groups)
+    import h5py
+    from cfddem.io.results import _read_tree
+    with h5py.File(tmp_path / "ck.h5", "w") as f:
+        for k, v in cm.get_state().items():
+            f[k] = v
+    with h5py.File(tmp_path / "ck.h5", "r") as f:
+        nested = _read_tree(f, False)
+    cm3 = ChuteMeasurements(W, (0.0, 0.3), start_time=0.1, stations=(0.05, 0.2))
+    cm3.set_state(nested)
+    np.testing.assert_array_equal(cm3.results()["profile_left_phi"], r["profile_left_phi"])
     # stored and read back
     with ResultsFile(tmp_path / "r.h5") as rf:
         rf.write_measurements(cm.group, r, cm.attrs())
