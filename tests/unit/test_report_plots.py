@@ -50,7 +50,7 @@ def test_each_plot_writes_png(tmp_path):
         plot_series({"time": t}, tmp_path / "x.png")
 
 
-def test_run_report_from_results_file(tmp_path, caplog):
+def test_run_report_from_results_file(tmp_path):
     cm = _meas()
     p = tmp_path / "results.h5"
     with ResultsFile(p) as rf:
@@ -67,15 +67,30 @@ def test_run_report_from_results_file(tmp_path, caplog):
     assert "skipped" not in files[-1].read_text()
 
 
-def test_run_report_says_what_it_skipped(tmp_path, caplog):
+class _Collect(logging.Handler):
+    def __init__(self):
+        super().__init__(logging.WARNING)
+        self.text = ""
+
+    def emit(self, record):
+        self.text += self.format(record) + "\n"
+
+
+def test_run_report_says_what_it_skipped(tmp_path):
     p = tmp_path / "results.h5"
     with ResultsFile(p) as rf:
         rf.append_series(time=0.0, n_particles=0)
         rf.append_series(time=0.1, n_particles=5)
-    with caplog.at_level(logging.WARNING, logger="cfddem.report"):
+    # a handler on the report logger itself: the run logger may stop propagation to root
+    h = _Collect()
+    lg = logging.getLogger("cfddem.report")
+    lg.addHandler(h)
+    try:
         files = write_run_report(p, tmp_path / "rep")
+    finally:
+        lg.removeHandler(h)
     assert [f.name for f in files] == ["series.png", "report.txt"]
     text = files[-1].read_text()
     for name in ("bed_height.png", "surface_velocity.png", "mean_velocity.png", "depth_profiles.png"):
         assert f"skipped  {name}" in text
-        assert name in caplog.text
+        assert name in h.text
