@@ -1,0 +1,601 @@
+"""Particle <-> grid mapping on the staggered (MAC) gas grid (physics.md section 4).
+
+The distribution function ``delta`` of physics.md is trilinear: a particle at ``r`` gives
+each of the 8 grid nodes around it the weight
+
+    w = (1 - |s_x - i|)(1 - |s_y - j|)(1 - |s_z - k|),   s = (r - node_0)/h  (node units),
+
+so the weights are non-negative and sum to 1.  The same weights serve four purposes:
+
+* ``porosity``: solid volume V_a spread to cell centres, eps_c = 1 - sum_a V_a w_ac / V_cell;
+* ``deposit_faces``: each component of a per-particle force spread to its own staggered
+  face grid (x-component to the x-faces at (x_i, y_j+1/2, z_k+1/2), etc.);
+* ``interpolate_faces`` / ``interpolate_centres``: gas velocity (each component from its
+  own faces) and centre fields to the particle; exactly the transpose of the deposition, so
+  ``<deposit(f), u> = <f, interpolate(u)>`` and the momentum given to the gas is exactly
+  the opposite of the momentum taken from it;
+* ``gradient_at_particles``: grad p on the faces by central differences, interpolated like
+  the velocity.
+
+Node locations (names as in :mod:`cfddem.gas.grid`: ``ccc`` centres, ``fcc`` x-faces,
+``cfc`` y-faces, ``ccf`` z-faces).  Arrays are *interior* arrays (no halo): a centre field
+is ``(nx, ny, nz)``, an x-face field ``(nx+1, ny, nz)`` and so on.  ``Field`` objects (with
+an ``.interior`` attribute) are accepted where an array is read.
+
+Wall rule: a particle next to a wall keeps its whole volume (and its whole force) inside
+the domain.  Along a non-periodic axis, weight that would fall on a node outside the set of
+nodes the gas solver updates is folded onto the adjacent one:
+
+* centre nodes: a point within half a cell of the wall would give weight to the halo cell
+  -1 (or n); that weight goes to cell 0 (or n-1);
+* face nodes along the face normal: the boundary faces 0 and n carry prescribed (wall)
+  velocities and are not updated by the momentum equation, so their weight goes to faces 1
+  (and n-1).  A force deposited there would be lost; instead the whole force reaches the
+  gas.  Interpolation uses the same folded weights (it is the transpose), so within half a
+  cell of a wall the particle sees the first interior face's velocity.
+* particle centres outside the box on a wall axis are clamped onto it (the count is
+  reported by :func:`porosity` as ``n_outside``).
+
+Periodic axes wrap: node n is node 0.  Face grids keep their ``n+1`` entries along a
+periodic normal axis; deposition writes faces 0..n-1 only (face n stays 0) and
+interpolation reads face 0 for face n, so the pair stays exactly adjoint.  A non-periodic
+axis with a single cell has no interior face; the normal component is then dropped
+(deposited and interpolated as zero).
+
+Race-free, thread-independent deposition: particles are counting-sorted by their lower
+node ("bin") in serial; a ``prange`` loop over grid nodes then gathers from the particles of
+the (at most 2 x 2 x 2) bins that can reach that node, in a fixed order.  Each node is
+written by one thread and summed in the same order whatever the thread count, so results
+are bit-identical for 1 and N threads.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from cfddem._jit import kernel, parallel_kernel, prange
+from cfddem.errors import CaseError
+
+__all__ = [
+    "GridSpec",
+    "as_grid_spec",
+    "LOCATIONS",
+    "node_shape",
+    "trilinear_weights",
+    "deposit",
+    "porosity",
+    "PorosityResult",
+    "deposit_faces",
+    "interpolate",
+    "interpolate_faces",
+    "interpolate_centres",
+    "face_gradient",
+    "gradient_at_particles",
+]
+
+LOCATIONS = ("ccc", "fcc", "cfc", "ccf")
+FACE_LOCATIONS = ("fcc", "cfc", "ccf")
+
+
+class GridSpec(NamedTuple):
+    """origin (x0, y0, z0), spacing (dx, dy, dz), shape (nx, ny, nz) of the cell grid."""
+
+    origin: tuple
+    spacing: tuple
+    shape: tuple
+
+    @property
+    def cell_volume(self) -> float:
+        return float(self.spacing[0] * self.spacing[1] * self.spacing[2])
+
+
+def as_grid_spec(grid) -> GridSpec:
+    """A :class:`GridSpec` from a GridSpec, an object with ``origin``/``spacing``/``shape``
+    (e.g. :class:`cfddem.gas.grid.StaggeredGrid`), a mapping with those keys, or a tuple
+    ``(origin, spacing, shape)``."""
+    if isinstance(grid, GridSpec):
+        spec = grid
+    elif isinstance(grid, dict):
+        spec = GridSpec(grid["origin"], grid["spacing"], grid["shape"])
+    elif all(hasattr(grid, a) for a in ("origin", "spacing", "shape")):
+        spec = GridSpec(grid.origin, grid.spacing, grid.shape)
+    elif isinstance(grid, (tuple, list)) and len(grid) == 3:
+        spec = GridSpec(*grid)
+    else:
+        raise CaseError("coupling.grid", f"cannot read a grid spec (origin, spacing, shape) from {grid!r}")
+    try:
+        origin = tuple(float(v) for v in spec.origin)
+        spacing = tuple(float(v) for v in spec.spacing)
+        shape = tuple(int(v) for v in spec.shape)
+    except (TypeError, ValueError) as exc:
+        raise CaseError("coupling.grid", f"bad grid spec {spec!r}: {exc}") from None
+    if len(origin) != 3 or len(spacing) != 3 or len(shape) != 3:
+        raise CaseError("coupling.grid", "origin, spacing and shape need three entries each")
+    if any(not (h > 0.0) for h in spacing) or any(n < 1 for n in shape):
+        raise CaseError("coupling.grid", f"spacing must be > 0 and shape >= 1, got {spacing}, {shape}")
+    return GridSpec(origin, spacing, shape)
+
+
+def _periodic(periodic) -> tuple:
+    if periodic is None:
+        return (False, False, False)
+    if isinstance(periodic, (bool, np.bool_)):
+        return (bool(periodic),) * 3
+    p = tuple(bool(v) for v in periodic)
+    if len(p) != 3:
+        raise CaseError("coupling.periodic", f"need three flags, got {periodic!r}")
+    return p
+
+
+def node_shape(grid, location="ccc") -> tuple:
+    """Interior array shape of the nodes of ``location`` (centres or one face grid)."""
+    spec = as_grid_spec(grid)
+    if location not in LOCATIONS:
+        raise CaseError("coupling.location", f"unknown location {location!r}; expected one of {LOCATIONS}")
+    return tuple(n + (1 if location[a] == "f" else 0) for a, n in enumerate(spec.shape))
+
+
+class _Axes(NamedTuple):
+    x0: np.ndarray  # position of node 0
+    h: np.ndarray
+    n: np.ndarray  # cells (period for periodic axes)
+    per: np.ndarray  # 1 periodic
+    lo: np.ndarray  # fold limits (wall axes)
+    hi: np.ndarray
+    bmin: np.ndarray  # smallest lower-node index (bin offset)
+    nbin: np.ndarray
+    smin: np.ndarray  # clamp range in node units (wall axes)
+    smax: np.ndarray
+    shape: tuple  # node array shape
+    dead: bool  # a face grid on a one-cell wall axis: no interior face
+
+
+def _axes(spec: GridSpec, location: str, periodic: tuple) -> _Axes:
+    x0 = np.empty(3)
+    h = np.empty(3)
+    n = np.empty(3, np.int64)
+    per = np.empty(3, np.int64)
+    lo = np.empty(3, np.int64)
+    hi = np.empty(3, np.int64)
+    bmin = np.empty(3, np.int64)
+    nbin = np.empty(3, np.int64)
+    smin = np.empty(3)
+    smax = np.empty(3)
+    dead = False
+    for a in range(3):
+        na, ha, oa = spec.shape[a], spec.spacing[a], spec.origin[a]
+        face = location[a] == "f"
+        h[a] = ha
+        n[a] = na
+        per[a] = 1 if periodic[a] else 0
+        x0[a] = oa if face else oa + 0.5 * ha
+        if periodic[a]:
+            lo[a], hi[a], bmin[a], nbin[a] = 0, na - 1, 0, na
+            smin[a], smax[a] = 0.0, float(na)
+        elif face:
+            lo[a], hi[a], bmin[a], nbin[a] = 1, na - 1, 0, na
+            smin[a], smax[a] = 0.0, float(na)
+            if na < 2:
+                dead = True
+        else:
+            lo[a], hi[a], bmin[a], nbin[a] = 0, na - 1, -1, na + 1
+            smin[a], smax[a] = -0.5, na - 0.5
+    shape = tuple(int(spec.shape[a]) + (1 if location[a] == "f" else 0) for a in range(3))
+    return _Axes(x0, h, n, per, lo, hi, bmin, nbin, smin, smax, shape, dead)
+
+
+# --------------------------------------------------------------------------------------
+# kernels
+# --------------------------------------------------------------------------------------
+
+
+@kernel(inline="always")
+def _axis_weights(x, x0, h, n, per, lo, hi, bmin, smin, smax):
+    """Lower node a0, upper node a1 (after wrap/fold), their weights and the bin index."""
+    s = (x - x0) / h
+    if per == 1:
+        s = s - n * np.floor(s / n)
+        if s >= n:
+            s -= n
+        if s < 0.0:
+            s = 0.0
+        i0 = int(np.floor(s))
+        if i0 > n - 1:
+            i0 = n - 1
+        f = s - i0
+        a0 = i0
+        a1 = i0 + 1
+        if a1 >= n:
+            a1 -= n
+        b = i0
+    else:
+        if s < smin:
+            s = smin
+        if s > smax:
+            s = smax
+        i0 = int(np.floor(s))
+        if i0 > n - 1:
+            i0 = n - 1
+        f = s - i0
+        a0 = i0
+        a1 = i0 + 1
+        if a0 < lo:
+            a0 = lo
+        if a0 > hi:
+            a0 = hi
+        if a1 < lo:
+            a1 = lo
+        if a1 > hi:
+            a1 = hi
+        b = i0 - bmin
+    return b, a0, a1, 1.0 - f, f
+
+
+@parallel_kernel
+def _weights_kernel(pos, x0, h, n, per, lo, hi, bmin, smin, smax, nbin, a0, a1, w0, w1, key):
+    """Per particle and axis: nodes a0, a1 and weights w0, w1; flattened bin key."""
+    for p in prange(pos.shape[0]):
+        k = 0
+        for a in range(3):
+            b, i0, i1, v0, v1 = _axis_weights(pos[p, a], x0[a], h[a], n[a], per[a], lo[a], hi[a], bmin[a], smin[a], smax[a])
+            a0[p, a] = i0
+            a1[p, a] = i1
+            w0[p, a] = v0
+            w1[p, a] = v1
+            k = k * nbin[a] + b
+        key[p] = k
+    return 0
+
+
+@kernel
+def _counting_sort(key, nbins, start, order):
+    """Stable counting sort: particles of bin b are order[start[b]:start[b+1]], by index."""
+    for b in range(nbins + 1):
+        start[b] = 0
+    for p in range(key.shape[0]):
+        start[key[p] + 1] += 1
+    for b in range(nbins):
+        start[b + 1] += start[b]
+    fill = start[:nbins].copy()
+    for p in range(key.shape[0]):
+        b = key[p]
+        order[fill[b]] = p
+        fill[b] += 1
+    return 0
+
+
+@kernel(inline="always")
+def _cands(t, n, per, bmin, nbin):
+    """Bins (stored indices) whose particles can reach node t along one axis: (m, c0, c1)."""
+    if per == 1:
+        b1 = t - 1
+        if b1 < 0:
+            b1 += n
+        b2 = t
+        if b2 >= n:
+            b2 -= n
+        if b2 != b1:
+            return 2, b1, b2
+        return 1, b1, b1
+    s1 = t - 1 - bmin
+    s2 = t - bmin
+    ok1 = s1 >= 0 and s1 < nbin
+    ok2 = s2 >= 0 and s2 < nbin
+    if ok1 and ok2:
+        return 2, s1, s2
+    if ok1:
+        return 1, s1, s1
+    if ok2:
+        return 1, s2, s2
+    return 0, s1, s1
+
+
+@parallel_kernel
+def _gather_kernel(nodes_shape, n, per, bmin, nbin, start, order, a0, a1, w0, w1, val, out):
+    """out[t] = sum_p w_pt val[p], looping over nodes t (each written by one thread)."""
+    nx = nodes_shape[0]
+    ny = nodes_shape[1]
+    nz = nodes_shape[2]
+    nby = nbin[1]
+    nbz = nbin[2]
+    for t in prange(nx * ny * nz):
+        tz = t % nz
+        ty = (t // nz) % ny
+        tx = t // (ny * nz)
+        mx, cx0, cx1 = _cands(tx, n[0], per[0], bmin[0], nbin[0])
+        my, cy0, cy1 = _cands(ty, n[1], per[1], bmin[1], nbin[1])
+        mz, cz0, cz1 = _cands(tz, n[2], per[2], bmin[2], nbin[2])
+        acc = 0.0
+        for ix in range(mx):
+            for iy in range(my):
+                for iz in range(mz):
+                    bx = cx0 if ix == 0 else cx1
+                    by = cy0 if iy == 0 else cy1
+                    bz = cz0 if iz == 0 else cz1
+                    b = (bx * nby + by) * nbz + bz
+                    for k in range(start[b], start[b + 1]):
+                        p = order[k]
+                        wx = 0.0
+                        if a0[p, 0] == tx:
+                            wx += w0[p, 0]
+                        if a1[p, 0] == tx:
+                            wx += w1[p, 0]
+                        wy = 0.0
+                        if a0[p, 1] == ty:
+                            wy += w0[p, 1]
+                        if a1[p, 1] == ty:
+                            wy += w1[p, 1]
+                        wz = 0.0
+                        if a0[p, 2] == tz:
+                            wz += w0[p, 2]
+                        if a1[p, 2] == tz:
+                            wz += w1[p, 2]
+                        acc += wx * wy * wz * val[p]
+        out[tx, ty, tz] = acc
+    return 0
+
+
+@parallel_kernel
+def _interp_kernel(a0, a1, w0, w1, field, out):
+    """out[p] = sum over the 8 corner nodes of w * field[node] (each particle its own slot)."""
+    for p in prange(a0.shape[0]):
+        acc = 0.0
+        for cx in range(2):
+            ix = a0[p, 0] if cx == 0 else a1[p, 0]
+            wx = w0[p, 0] if cx == 0 else w1[p, 0]
+            for cy in range(2):
+                iy = a0[p, 1] if cy == 0 else a1[p, 1]
+                wy = w0[p, 1] if cy == 0 else w1[p, 1]
+                for cz in range(2):
+                    iz = a0[p, 2] if cz == 0 else a1[p, 2]
+                    wz = w0[p, 2] if cz == 0 else w1[p, 2]
+                    acc += wx * wy * wz * field[ix, iy, iz]
+        out[p] = acc
+    return 0
+
+
+# --------------------------------------------------------------------------------------
+# Python orchestration
+# --------------------------------------------------------------------------------------
+
+
+def _positions(pos) -> np.ndarray:
+    pos = np.ascontiguousarray(pos, dtype=np.float64)
+    if pos.ndim != 2 or pos.shape[1] != 3:
+        raise CaseError("coupling.positions", f"positions must be an (n, 3) array, got shape {pos.shape}")
+    if pos.size and not np.all(np.isfinite(pos)):
+        bad = int(np.count_nonzero(~np.all(np.isfinite(pos), axis=1)))
+        raise CaseError("coupling.positions", f"{bad} particle position(s) are not finite")
+    return pos
+
+
+class _Weights(NamedTuple):
+    ax: _Axes
+    a0: np.ndarray
+    a1: np.ndarray
+    w0: np.ndarray
+    w1: np.ndarray
+    key: np.ndarray
+
+
+def _weights(spec: GridSpec, location: str, pos: np.ndarray, periodic: tuple) -> _Weights:
+    ax = _axes(spec, location, periodic)
+    m = pos.shape[0]
+    a0 = np.empty((m, 3), np.int64)
+    a1 = np.empty((m, 3), np.int64)
+    w0 = np.empty((m, 3))
+    w1 = np.empty((m, 3))
+    key = np.empty(m, np.int64)
+    _weights_kernel(pos, ax.x0, ax.h, ax.n, ax.per, ax.lo, ax.hi, ax.bmin, ax.smin, ax.smax, ax.nbin, a0, a1, w0, w1, key)
+    return _Weights(ax, a0, a1, w0, w1, key)
+
+
+def _gather(wt: _Weights, values: np.ndarray, order=None, start=None) -> np.ndarray:
+    ax = wt.ax
+    out = np.zeros(ax.shape)
+    if ax.dead or values.shape[0] == 0:
+        return out
+    if order is None:
+        nbins = int(np.prod(ax.nbin))
+        start = np.empty(nbins + 1, np.int64)
+        order = np.empty(values.shape[0], np.int64)
+        _counting_sort(wt.key, nbins, start, order)
+    _gather_kernel(np.array(ax.shape, np.int64), ax.n, ax.per, ax.bmin, ax.nbin, start, order,
+                   wt.a0, wt.a1, wt.w0, wt.w1, values, out)
+    return out
+
+
+def _check_location(location):
+    if location not in LOCATIONS:
+        raise CaseError("coupling.location", f"unknown location {location!r}; expected one of {LOCATIONS}")
+
+
+def trilinear_weights(grid, pos, location="ccc", periodic=None):
+    """Node indices ``(n, 8, 3)`` and weights ``(n, 8)`` of each particle on the nodes of
+    ``location`` (after the wall fold and periodic wrap; a node may appear twice).
+
+    Corner c = 4 cx + 2 cy + cz takes the lower (0) or upper (1) node along each axis.  For
+    inspection and tests; the kernels use the same per-axis weights."""
+    spec = as_grid_spec(grid)
+    _check_location(location)
+    pos = _positions(pos)
+    wt = _weights(spec, location, pos, _periodic(periodic))
+    m = pos.shape[0]
+    idx = np.empty((m, 8, 3), np.int64)
+    w = np.empty((m, 8))
+    for c in range(8):
+        bits = ((c >> 2) & 1, (c >> 1) & 1, c & 1)
+        wc = np.ones(m)
+        for a, bit in enumerate(bits):
+            idx[:, c, a] = wt.a1[:, a] if bit else wt.a0[:, a]
+            wc = wc * (wt.w1[:, a] if bit else wt.w0[:, a])
+        w[:, c] = wc
+    if wt.ax.dead:
+        w[:] = 0.0
+    return idx, w
+
+
+def deposit(grid, pos, values, location="ccc", periodic=None) -> np.ndarray:
+    """Spread per-particle scalars ``values (n,)`` to the nodes of ``location`` with the
+    trilinear weights: S[t] = sum_a w_at values[a] (a sum, not a density).  Race-free and
+    bit-identical for any thread count; sum(S) = sum(values) up to round-off."""
+    spec = as_grid_spec(grid)
+    _check_location(location)
+    pos = _positions(pos)
+    values = np.ascontiguousarray(values, dtype=np.float64).reshape(-1)
+    if values.shape[0] != pos.shape[0]:
+        raise CaseError("coupling.values", f"{values.shape[0]} values for {pos.shape[0]} particles")
+    wt = _weights(spec, location, pos, _periodic(periodic))
+    return _gather(wt, values)
+
+
+class PorosityResult(NamedTuple):
+    """eps (nx, ny, nz); n_low: cells with eps < eps_min; n_negative: cells with eps < 0
+    (more solid than the cell holds); eps_min_found and where (cell index) of the minimum;
+    solid_volume: total deposited volume (= sum of particle volumes); n_outside: particle
+    centres outside the box on a wall axis (clamped onto it)."""
+
+    eps: np.ndarray
+    n_low: int
+    n_negative: int
+    eps_min_found: float
+    where: tuple
+    solid_volume: float
+    n_outside: int
+
+
+def porosity(grid, pos, radius, periodic=None, eps_min=0.3) -> PorosityResult:
+    """Porosity eps_c = 1 - sum_a V_a w_ac / V_cell at the cell centres, V_a = 4/3 pi R_a^3.
+
+    Never clipped: cells below ``eps_min`` (and below 0) are counted and the minimum and its
+    cell are returned so that the caller can log where and how much.  Point-volume trilinear
+    deposition: cells smaller than about 3 particle diameters give a noisy eps (and, if much
+    smaller than a particle, eps < 0)."""
+    spec = as_grid_spec(grid)
+    pos = _positions(pos)
+    per = _periodic(periodic)
+    r = np.broadcast_to(np.asarray(radius, dtype=np.float64), (pos.shape[0],))
+    vol = np.ascontiguousarray(4.0 / 3.0 * np.pi * r**3)
+    wt = _weights(spec, "ccc", pos, per)
+    solid = _gather(wt, vol)
+    eps = 1.0 - solid / spec.cell_volume
+    k = int(np.argmin(eps))
+    where = tuple(int(v) for v in np.unravel_index(k, eps.shape))
+    outside = np.zeros(pos.shape[0], bool)
+    for a in range(3):
+        if not per[a]:
+            lo = spec.origin[a]
+            hi = lo + spec.shape[a] * spec.spacing[a]
+            outside |= (pos[:, a] < lo) | (pos[:, a] > hi)
+    return PorosityResult(
+        eps,
+        int(np.count_nonzero(eps < eps_min)),
+        int(np.count_nonzero(eps < 0.0)),
+        float(eps.flat[k]),
+        where,
+        float(solid.sum()),
+        int(np.count_nonzero(outside)),
+    )
+
+
+def deposit_faces(grid, pos, values, periodic=None):
+    """Spread per-particle vectors ``values (n, 3)`` (e.g. the reaction of the drag force) to
+    the staggered face grids: component 0 to the x-faces ``(nx+1, ny, nz)``, 1 to the
+    y-faces, 2 to the z-faces, each with its own trilinear weights.  Returns (Su, Sv, Sw),
+    sums per face [same unit as values]; divide by the cell volume for a density.  The sum
+    over faces equals the sum over particles component by component (up to round-off),
+    except for a component normal to a one-cell wall axis (dropped, see module doc)."""
+    spec = as_grid_spec(grid)
+    pos = _positions(pos)
+    values = np.ascontiguousarray(values, dtype=np.float64)
+    if values.shape != pos.shape:
+        raise CaseError("coupling.values", f"values must have shape {pos.shape}, got {values.shape}")
+    per = _periodic(periodic)
+    out = []
+    for c, loc in enumerate(FACE_LOCATIONS):
+        wt = _weights(spec, loc, pos, per)
+        out.append(_gather(wt, np.ascontiguousarray(values[:, c])))
+    return tuple(out)
+
+
+def _array(field, shape, name):
+    arr = getattr(field, "interior", field)
+    arr = np.ascontiguousarray(arr, dtype=np.float64)
+    if arr.shape != tuple(shape):
+        raise CaseError("coupling.field", f"{name} must have interior shape {tuple(shape)}, got {arr.shape}")
+    return arr
+
+
+def interpolate(grid, field, pos, location="ccc", periodic=None) -> np.ndarray:
+    """Value of a node field of ``location`` at the particles (n,): sum_t w_at field[t]."""
+    spec = as_grid_spec(grid)
+    _check_location(location)
+    pos = _positions(pos)
+    wt = _weights(spec, location, pos, _periodic(periodic))
+    arr = _array(field, wt.ax.shape, location + " field")
+    out = np.zeros(pos.shape[0])
+    if wt.ax.dead or pos.shape[0] == 0:
+        return out
+    _interp_kernel(wt.a0, wt.a1, wt.w0, wt.w1, arr, out)
+    return out
+
+
+def interpolate_centres(grid, field, pos, periodic=None) -> np.ndarray:
+    """A cell-centre field ``(nx, ny, nz)`` at the particles (n,)."""
+    return interpolate(grid, field, pos, "ccc", periodic)
+
+
+def interpolate_faces(grid, u, v, w, pos, periodic=None) -> np.ndarray:
+    """Staggered velocity at the particles, (n, 3): u from the x-faces ``(nx+1, ny, nz)``, v
+    from the y-faces, w from the z-faces, each with its own weights (the transpose of
+    :func:`deposit_faces`)."""
+    pos = _positions(pos)
+    out = np.empty((pos.shape[0], 3))
+    for c, (loc, f) in enumerate(zip(FACE_LOCATIONS, (u, v, w))):
+        out[:, c] = interpolate(grid, f, pos, loc, periodic)
+    return out
+
+
+def face_gradient(grid, p, periodic=None):
+    """grad p on the faces: (gx, gy, gz) with gx[i] = (p[i] - p[i-1])/dx on x-face i.
+
+    Interior faces 1..n-1 by the central difference; on a periodic axis face 0 (and its
+    image face n) uses p[0] - p[n-1]; on a wall axis the boundary faces are set to 0 (the
+    wall fold never gives them weight)."""
+    spec = as_grid_spec(grid)
+    per = _periodic(periodic)
+    p = _array(p, spec.shape, "pressure (ccc)")
+    grads = []
+    for a in range(3):
+        h = spec.spacing[a]
+        shp = list(spec.shape)
+        shp[a] += 1
+        g = np.zeros(shp)
+        sl = [slice(None)] * 3
+        sl[a] = slice(1, spec.shape[a])
+        g[tuple(sl)] = np.diff(p, axis=a) / h
+        if per[a]:
+            first = [slice(None)] * 3
+            last = [slice(None)] * 3
+            first[a] = slice(0, 1)
+            last[a] = slice(spec.shape[a] - 1, spec.shape[a])
+            wrap = (p[tuple(first)] - p[tuple(last)]) / h
+            s0 = [slice(None)] * 3
+            s0[a] = slice(0, 1)
+            sn = [slice(None)] * 3
+            sn[a] = slice(spec.shape[a], spec.shape[a] + 1)
+            g[tuple(s0)] = wrap
+            g[tuple(sn)] = wrap
+        grads.append(g)
+    return tuple(grads)
+
+
+def gradient_at_particles(grid, p, pos, periodic=None) -> np.ndarray:
+    """grad p at the particles (n, 3): face differences (:func:`face_gradient`) interpolated
+    like the velocity.  Exact for a pressure field linear in x, y, z (away from walls within
+    half a cell, where the fold uses the first interior face's value - also exact for
+    linear p)."""
+    gx, gy, gz = face_gradient(grid, p, periodic)
+    return interpolate_faces(grid, gx, gy, gz, pos, periodic)
