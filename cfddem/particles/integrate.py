@@ -1,0 +1,455 @@
+"""Time integration and the per-step force kernels.
+
+Integrator: velocity Verlet in kick-drift-kick form (as LIGGGHTS ``fix nve/sphere``), for
+translation and rotation:
+
+    v_{n+1/2} = K_{dt/2}(v_n; F_n)          w_{n+1/2} = K_{dt/2}(w_n; T_n)
+    r_{n+1}   = r_n + dt v_{n+1/2}
+    F_{n+1}, T_{n+1} from r_{n+1}, v_{n+1/2}, w_{n+1/2}
+    v_{n+1}   = K_{dt/2}(v_{n+1/2}; F_{n+1})  w_{n+1} = K_{dt/2}(w_{n+1/2}; T_{n+1})
+
+Rotating frame (physics.md §3): the centrifugal force -m Omega x (Omega x (r - r_axis)) depends
+on position only and is part of F.  The velocity-dependent terms are integrated inside each
+half kick K_h exactly as a rotation, Boris style:
+
+    v- = v + (h/2) F/m;   v+ = Rot(Omega_hat, -2|Omega| h) v-;   v_new = v+ + (h/2) F/m
+
+(exact for dv/dt = -2 Omega x v; the kick is a symmetric second-order approximation of the flow
+of dv/dt = F/m - 2 Omega x v, so Strang composition keeps the scheme second order and
+time-reversible).  Likewise w is rotated by angle -|Omega| h for T = -I Omega x w.
+
+Kernels per step: :func:`kick_drift` (prange over particles), the neighbour rebuild when
+needed, :func:`pair_forces` (prange over pairs: each pair once, writes only its own slots),
+:func:`gather_walls_kick` (prange over particles: sums the pair forces through the CSR of
+incident pairs in a fixed order, adds walls and body forces, does the closing half kick).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from cfddem._jit import kernel, parallel_kernel, prange
+from cfddem.particles._twin import serial_twin
+from cfddem.particles.contact import P_MUR, pair_law, rolling_torque_limited
+from cfddem.particles.neighbours import _min_image
+from cfddem.particles.walls import wall_contact
+
+
+def rotation_matrix(axis_vec, angle_per_unit: float, h: float) -> np.ndarray:
+    """Rotation by angle ``-angle_per_unit * |axis_vec| * h`` about ``axis_vec`` (Rodrigues)."""
+    a = np.asarray(axis_vec, float)
+    w = float(np.linalg.norm(a))
+    if w == 0.0:
+        return np.eye(3)
+    k = a / w
+    th = -angle_per_unit * w * h
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + math.sin(th) * K + (1 - math.cos(th)) * (K @ K)
+
+
+@kernel(inline="always")
+def _half_kick(vx, vy, vz, ax, ay, az, h, rotating, R):
+    vx += 0.5 * h * ax
+    vy += 0.5 * h * ay
+    vz += 0.5 * h * az
+    if rotating:
+        ux = R[0, 0] * vx + R[0, 1] * vy + R[0, 2] * vz
+        uy = R[1, 0] * vx + R[1, 1] * vy + R[1, 2] * vz
+        uz = R[2, 0] * vx + R[2, 1] * vy + R[2, 2] * vz
+        vx, vy, vz = ux, uy, uz
+    vx += 0.5 * h * ax
+    vy += 0.5 * h * ay
+    vz += 0.5 * h * az
+    return vx, vy, vz
+
+
+@parallel_kernel
+def kick_drift(n, pos, vel, omg, force, torque, mass, inertia, ext_f, ext_t, dt, rotating, Rv, Rw,
+               periodic_len, plo, ref):
+    """Opening half kick and drift; wraps periodic axes; returns max |r - r_ref|^2."""
+    h = 0.5 * dt
+    m2 = 0.0
+    for i in prange(n):
+        im = 1.0 / mass[i]
+        ii = 1.0 / inertia[i]
+        vx, vy, vz = _half_kick(vel[i, 0], vel[i, 1], vel[i, 2],
+                                (force[i, 0] + ext_f[i, 0]) * im, (force[i, 1] + ext_f[i, 1]) * im,
+                                (force[i, 2] + ext_f[i, 2]) * im, h, rotating, Rv)
+        wx, wy, wz = _half_kick(omg[i, 0], omg[i, 1], omg[i, 2],
+                                (torque[i, 0] + ext_t[i, 0]) * ii, (torque[i, 1] + ext_t[i, 1]) * ii,
+                                (torque[i, 2] + ext_t[i, 2]) * ii, h, rotating, Rw)
+        vel[i, 0] = vx
+        vel[i, 1] = vy
+        vel[i, 2] = vz
+        omg[i, 0] = wx
+        omg[i, 1] = wy
+        omg[i, 2] = wz
+        x = pos[i, 0] + dt * vx
+        y = pos[i, 1] + dt * vy
+        z = pos[i, 2] + dt * vz
+        if periodic_len[0] > 0.0:
+            x -= periodic_len[0] * math.floor((x - plo[0]) / periodic_len[0])
+        if periodic_len[1] > 0.0:
+            y -= periodic_len[1] * math.floor((y - plo[1]) / periodic_len[1])
+        if periodic_len[2] > 0.0:
+            z -= periodic_len[2] * math.floor((z - plo[2]) / periodic_len[2])
+        pos[i, 0] = x
+        pos[i, 1] = y
+        pos[i, 2] = z
+        dx = _min_image(x - ref[i, 0], periodic_len[0])
+        dy = _min_image(y - ref[i, 1], periodic_len[1])
+        dz = _min_image(z - ref[i, 2], periodic_len[2])
+        m2 = max(m2, dx * dx + dy * dy + dz * dz)
+    return m2
+
+
+@parallel_kernel
+def pair_forces(npairs, pi, pj, pos, vel, omg, radius, mass, inertia, params, periodic_len,
+                hist, pf, pta, ptb, dt, dt_hist):
+    """Per-pair contact force on the first particle a (pf), torques on a (pta) and b (ptb);
+    updates the tangential history (zero when not touching).  Returns the max overlap ratio
+    d_n / min(R_a, R_b)."""
+    mur = params[P_MUR]
+    ovmax = 0.0
+    for k in prange(npairs):
+        a = pi[k]
+        b = pj[k]
+        dx = _min_image(pos[b, 0] - pos[a, 0], periodic_len[0])
+        dy = _min_image(pos[b, 1] - pos[a, 1], periodic_len[1])
+        dz = _min_image(pos[b, 2] - pos[a, 2], periodic_len[2])
+        ra = radius[a]
+        rb = radius[b]
+        rs = ra + rb
+        d2 = dx * dx + dy * dy + dz * dz
+        if d2 >= rs * rs:
+            hist[k, 0] = 0.0
+            hist[k, 1] = 0.0
+            hist[k, 2] = 0.0
+            for c in range(3):
+                pf[k, c] = 0.0
+                pta[k, c] = 0.0
+                ptb[k, c] = 0.0
+            continue
+        d = math.sqrt(d2)
+        nx = dx / d
+        ny = dy / d
+        nz = dz / d
+        dn = rs - d
+        ma = mass[a]
+        mb = mass[b]
+        meff = ma * mb / (ma + mb)
+        sx = ra * omg[a, 0] + rb * omg[b, 0]
+        sy = ra * omg[a, 1] + rb * omg[b, 1]
+        sz = ra * omg[a, 2] + rb * omg[b, 2]
+        vx = vel[a, 0] - vel[b, 0] + sy * nz - sz * ny
+        vy = vel[a, 1] - vel[b, 1] + sz * nx - sx * nz
+        vz = vel[a, 2] - vel[b, 2] + sx * ny - sy * nx
+        fx, fy, fz, tx, ty, tz, hx, hy, hz, fnabs = pair_law(
+            params, meff, ra * rb / rs, dn, nx, ny, nz, vx, vy, vz,
+            hist[k, 0], hist[k, 1], hist[k, 2], dt_hist)
+        hist[k, 0] = hx
+        hist[k, 1] = hy
+        hist[k, 2] = hz
+        pf[k, 0] = fx
+        pf[k, 1] = fy
+        pf[k, 2] = fz
+        # n x F_t
+        cx = ny * tz - nz * ty
+        cy = nz * tx - nx * tz
+        cz = nx * ty - ny * tx
+        rx = 0.0
+        ry = 0.0
+        rz = 0.0
+        if mur > 0.0:
+            rx, ry, rz = rolling_torque_limited(
+                mur, ra * rb / rs, fnabs, omg[a, 0] - omg[b, 0], omg[a, 1] - omg[b, 1],
+                omg[a, 2] - omg[b, 2], 1.0 / inertia[a] + 1.0 / inertia[b], dt)
+        pta[k, 0] = ra * cx + rx
+        pta[k, 1] = ra * cy + ry
+        pta[k, 2] = ra * cz + rz
+        ptb[k, 0] = rb * cx - rx
+        ptb[k, 1] = rb * cy - ry
+        ptb[k, 2] = rb * cz - rz
+        ovmax = max(ovmax, dn / min(ra, rb))
+    return ovmax
+
+
+@parallel_kernel
+def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ext_f, ext_t,
+                      pf, pta, ptb, first_start, second_start, second_list,
+                      wgeom, wref, wpar, nw, whist, won, wfw, wtw, wfn,
+                      gx, gy, gz, omx, omy, omz, cax, cay, caz,
+                      dt, dt_hist, kick, rotating, Rv, Rw):
+    """Sum pair forces per particle (fixed order), add walls, gravity, centrifugal force, store
+    F and T, and (if ``kick``) do the closing half kick.
+
+    Wall rolling friction is applied here, after all other torques on the particle are known:
+    with w' = w + dt (T + T_ext)/I the spin predicted without it, the rolling torque of a wall
+    contact is T_r = -I w'/dt if |I w'/dt| <= mu_r R |F_n| (the spin stops exactly: static rolling
+    resistance) else -mu_r R |F_n| w'/|w'|.  It never reverses the spin within the step.
+
+    Returns (count of particles with non-finite position/velocity/spin, max wall overlap ratio).
+    """
+    h = 0.5 * dt
+    bad = 0
+    ovmax = 0.0
+    for i in prange(n):
+        fx = 0.0
+        fy = 0.0
+        fz = 0.0
+        tx = 0.0
+        ty = 0.0
+        tz = 0.0
+        for k in range(first_start[i], first_start[i + 1]):
+            fx += pf[k, 0]
+            fy += pf[k, 1]
+            fz += pf[k, 2]
+            tx += pta[k, 0]
+            ty += pta[k, 1]
+            tz += pta[k, 2]
+        for s in range(second_start[i], second_start[i + 1]):
+            k = second_list[s]
+            fx -= pf[k, 0]
+            fy -= pf[k, 1]
+            fz -= pf[k, 2]
+            tx += ptb[k, 0]
+            ty += ptb[k, 1]
+            tz += ptb[k, 2]
+        x = pos[i, 0]
+        y = pos[i, 1]
+        z = pos[i, 2]
+        r = radius[i]
+        m = mass[i]
+        inert = inertia[i]
+        vx = vel[i, 0]
+        vy = vel[i, 1]
+        vz = vel[i, 2]
+        wx = omg[i, 0]
+        wy = omg[i, 1]
+        wz = omg[i, 2]
+        anyroll = False
+        for w in range(nw):
+            ov, nx, ny, nz, qx, qy, qz = wall_contact(wgeom[w], x, y, z, r)
+            if ov > 0.0:
+                # n_ab from the particle (a) towards the wall (b)
+                ax_ = -nx
+                ay_ = -ny
+                az_ = -nz
+                sx = r * wx
+                sy = r * wy
+                sz = r * wz
+                rvx = vx - wgeom[w, 16] + sy * az_ - sz * ay_
+                rvy = vy - wgeom[w, 17] + sz * ax_ - sx * az_
+                rvz = vz - wgeom[w, 18] + sx * ay_ - sy * ax_
+                cfx, cfy, cfz, ctx, cty, ctz, hx, hy, hz, fnabs = pair_law(
+                    wpar[w], m, r, ov, ax_, ay_, az_, rvx, rvy, rvz,
+                    whist[i, w, 0], whist[i, w, 1], whist[i, w, 2], dt_hist)
+                whist[i, w, 0] = hx
+                whist[i, w, 1] = hy
+                whist[i, w, 2] = hz
+                fx += cfx
+                fy += cfy
+                fz += cfz
+                tx += r * (ay_ * ctz - az_ * cty)
+                ty += r * (az_ * ctx - ax_ * ctz)
+                tz += r * (ax_ * cty - ay_ * ctx)
+                won[i, w] = 1
+                wfn[i, w] = fnabs
+                wfw[i, w, 0] = -cfx
+                wfw[i, w, 1] = -cfy
+                wfw[i, w, 2] = -cfz
+                lx = qx - wref[w, 0]
+                ly = qy - wref[w, 1]
+                lz = qz - wref[w, 2]
+                wtw[i, w, 0] = -(ly * cfz - lz * cfy)
+                wtw[i, w, 1] = -(lz * cfx - lx * cfz)
+                wtw[i, w, 2] = -(lx * cfy - ly * cfx)
+                ovmax = max(ovmax, ov / r)
+                if wpar[w, P_MUR] > 0.0:
+                    anyroll = True
+            elif won[i, w] != 0:
+                won[i, w] = 0
+                wfn[i, w] = 0.0
+                for c in range(3):
+                    whist[i, w, c] = 0.0
+                    wfw[i, w, c] = 0.0
+                    wtw[i, w, c] = 0.0
+        if anyroll:
+            pwx = wx + dt * (tx + ext_t[i, 0]) / inert
+            pwy = wy + dt * (ty + ext_t[i, 1]) / inert
+            pwz = wz + dt * (tz + ext_t[i, 2]) / inert
+            for w in range(nw):
+                mur = wpar[w, P_MUR]
+                if won[i, w] == 0 or mur == 0.0:
+                    continue
+                tmax = mur * r * wfn[i, w]
+                pw = math.sqrt(pwx * pwx + pwy * pwy + pwz * pwz)
+                if pw == 0.0:
+                    continue
+                tstop = inert * pw / dt
+                if tstop <= tmax:
+                    s = -inert / dt
+                else:
+                    s = -tmax / pw
+                rx = s * pwx
+                ry = s * pwy
+                rz = s * pwz
+                tx += rx
+                ty += ry
+                tz += rz
+                pwx += dt * rx / inert
+                pwy += dt * ry / inert
+                pwz += dt * rz / inert
+                wtw[i, w, 0] -= rx
+                wtw[i, w, 1] -= ry
+                wtw[i, w, 2] -= rz
+        # body forces: gravity and centrifugal -m Omega x (Omega x (r - r_axis))
+        fx += m * gx
+        fy += m * gy
+        fz += m * gz
+        if rotating:
+            px = x - cax
+            py = y - cay
+            pz = z - caz
+            o2 = omx * omx + omy * omy + omz * omz
+            op = omx * px + omy * py + omz * pz
+            fx += m * (o2 * px - op * omx)
+            fy += m * (o2 * py - op * omy)
+            fz += m * (o2 * pz - op * omz)
+        force[i, 0] = fx
+        force[i, 1] = fy
+        force[i, 2] = fz
+        torque[i, 0] = tx
+        torque[i, 1] = ty
+        torque[i, 2] = tz
+        if kick:
+            im = 1.0 / m
+            ii = 1.0 / inert
+            vx, vy, vz = _half_kick(vx, vy, vz, (fx + ext_f[i, 0]) * im, (fy + ext_f[i, 1]) * im,
+                                    (fz + ext_f[i, 2]) * im, h, rotating, Rv)
+            wx, wy, wz = _half_kick(wx, wy, wz, (tx + ext_t[i, 0]) * ii, (ty + ext_t[i, 1]) * ii,
+                                    (tz + ext_t[i, 2]) * ii, h, rotating, Rw)
+            vel[i, 0] = vx
+            vel[i, 1] = vy
+            vel[i, 2] = vz
+            omg[i, 0] = wx
+            omg[i, 1] = wy
+            omg[i, 2] = wz
+        ok = (math.isfinite(x) and math.isfinite(y) and math.isfinite(z) and math.isfinite(vx)
+              and math.isfinite(vy) and math.isfinite(vz) and math.isfinite(wx)
+              and math.isfinite(wy) and math.isfinite(wz))
+        if not ok:
+            bad += 1
+    return bad, ovmax
+
+
+@kernel
+def first_bad(n, pos, vel, omg):
+    """Index of the first particle with a non-finite position, velocity or spin (-1: none)."""
+    for i in range(n):
+        for c in range(3):
+            if not (math.isfinite(pos[i, c]) and math.isfinite(vel[i, c]) and math.isfinite(omg[i, c])):
+                return i
+    return -1
+
+
+@kernel
+def worst_overlap(npairs, pi, pj, pos, radius, periodic_len, n, wgeom, nw):
+    """(particle index, ratio) of the largest overlap/min radius over pairs and walls."""
+    best = -1.0
+    who = -1
+    for k in range(npairs):
+        a = pi[k]
+        b = pj[k]
+        dx = _min_image(pos[b, 0] - pos[a, 0], periodic_len[0])
+        dy = _min_image(pos[b, 1] - pos[a, 1], periodic_len[1])
+        dz = _min_image(pos[b, 2] - pos[a, 2], periodic_len[2])
+        dn = radius[a] + radius[b] - math.sqrt(dx * dx + dy * dy + dz * dz)
+        q = dn / min(radius[a], radius[b])
+        if q > best:
+            best = q
+            who = a if radius[a] <= radius[b] else b
+    for i in range(n):
+        for w in range(nw):
+            ov, nx, ny, nz, qx, qy, qz = wall_contact(wgeom[w], pos[i, 0], pos[i, 1], pos[i, 2], radius[i])
+            if ov > 0.0 and ov / radius[i] > best:
+                best = ov / radius[i]
+                who = i
+    return who, best
+
+
+@kernel
+def elastic_energy(npairs, pi, pj, pos, radius, periodic_len, hist, kn_pp, kt_pp, n, wgeom, nw,
+                   wkn, wkt, whist):
+    """Energy stored in the contact springs: sum 1/2 k_n d_n^2 + 1/2 k_t |d_t|^2."""
+    e = 0.0
+    for k in range(npairs):
+        a = pi[k]
+        b = pj[k]
+        dx = _min_image(pos[b, 0] - pos[a, 0], periodic_len[0])
+        dy = _min_image(pos[b, 1] - pos[a, 1], periodic_len[1])
+        dz = _min_image(pos[b, 2] - pos[a, 2], periodic_len[2])
+        dn = radius[a] + radius[b] - math.sqrt(dx * dx + dy * dy + dz * dz)
+        if dn > 0.0:
+            e += 0.5 * kn_pp * dn * dn
+            e += 0.5 * kt_pp * (hist[k, 0] ** 2 + hist[k, 1] ** 2 + hist[k, 2] ** 2)
+    for i in range(n):
+        for w in range(nw):
+            ov, nx, ny, nz, qx, qy, qz = wall_contact(wgeom[w], pos[i, 0], pos[i, 1], pos[i, 2], radius[i])
+            if ov > 0.0:
+                e += 0.5 * wkn[w] * ov * ov
+                e += 0.5 * wkt[w] * (whist[i, w, 0] ** 2 + whist[i, w, 1] ** 2 + whist[i, w, 2] ** 2)
+    return e
+
+
+@parallel_kernel
+def overlap_check(pos, radius, n, newpos, newrad, m, periodic_len, out):
+    """out[q] = new sphere q overlaps an existing particle or an earlier/later new sphere."""
+    for q in prange(m):
+        x = newpos[q, 0]
+        y = newpos[q, 1]
+        z = newpos[q, 2]
+        r = newrad[q]
+        hit = False
+        for i in range(n):
+            dx = _min_image(pos[i, 0] - x, periodic_len[0])
+            dy = _min_image(pos[i, 1] - y, periodic_len[1])
+            dz = _min_image(pos[i, 2] - z, periodic_len[2])
+            c = r + radius[i]
+            if dx * dx + dy * dy + dz * dz < c * c:
+                hit = True
+                break
+        if not hit:
+            for p in range(m):
+                if p == q:
+                    continue
+                dx = _min_image(newpos[p, 0] - x, periodic_len[0])
+                dy = _min_image(newpos[p, 1] - y, periodic_len[1])
+                dz = _min_image(newpos[p, 2] - z, periodic_len[2])
+                c = r + newrad[p]
+                if dx * dx + dy * dy + dz * dz < c * c:
+                    hit = True
+                    break
+        out[q] = hit
+
+
+@kernel
+def reduce_walls(n, nw, won, wfw, wtw, fout, tout):
+    """Ordered (particle index) reduction of per-particle wall contributions."""
+    for w in range(nw):
+        for c in range(3):
+            fout[w, c] = 0.0
+            tout[w, c] = 0.0
+    for i in range(n):
+        for w in range(nw):
+            if won[i, w] != 0:
+                for c in range(3):
+                    fout[w, c] += wfw[i, w, c]
+                    tout[w, c] += wtw[i, w, c]
+
+
+kick_drift_s = serial_twin(kick_drift)
+pair_forces_s = serial_twin(pair_forces)
+gather_walls_kick_s = serial_twin(gather_walls_kick)

@@ -1,0 +1,324 @@
+"""Neighbour search: O(N) cell list (counting sort) and a Verlet half list with skin.
+
+Pairs (i, j), i < j in the cell-sorted particle order, with |r_j - r_i| < R_i + R_j + skin
+(minimum image along periodic axes).  The list is rebuilt when the largest displacement since
+the last build exceeds skin/2, so that no pair closer than R_i + R_j can be missing.
+
+Build (all deterministic, identical for any thread count):
+
+1. cell geometry (:func:`cell_grid`): along a periodic axis the fixed box (lo, hi); along
+   other axes the particles' bounding box.  Cell edge >= 2 R_max + skin; the total number of
+   cells is capped at a few times N so that one particle far away cannot allocate a huge grid.
+2. counting sort of particles by linear cell index (:func:`cell_sort`, stable) -- the caller
+   reorders the particle arrays in this order, which gives cache locality.  After the sort,
+   cell c holds particles ``cell_start[c] .. cell_start[c+1]-1``.
+3. a count pass and a fill pass (:func:`pair_count`, :func:`pair_fill`, ``prange`` over
+   particles): particle i scans the (up to) 27 neighbouring cells with index >= its own cell
+   and keeps j > i.  The pairs of particle i are stored contiguously from ``first_start[i]``,
+   so the list is ordered by i, then by scan order.  The fill kernel takes the capacity and
+   returns the needed size: nothing is written out of bounds; Python grows and refills.
+4. :func:`second_csr`: for each particle the pairs in which it is the second member (ascending
+   pair index).  The force gather uses both ranges in a fixed order (exact Newton's third law).
+5. :func:`remap_history`: each new pair looks its old tangential history up by the particles'
+   old indices (``old_index``, -1 for particles inserted since) in the old lists.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from cfddem._jit import kernel, parallel_kernel, prange
+from cfddem.particles._twin import serial_twin
+
+
+@parallel_kernel
+def bounding_box(pos, n):
+    """Per-axis min and max of pos[:n] (exact, order independent)."""
+    x0 = np.inf
+    y0 = np.inf
+    z0 = np.inf
+    x1 = -np.inf
+    y1 = -np.inf
+    z1 = -np.inf
+    for i in prange(n):
+        x0 = min(x0, pos[i, 0])
+        y0 = min(y0, pos[i, 1])
+        z0 = min(z0, pos[i, 2])
+        x1 = max(x1, pos[i, 0])
+        y1 = max(y1, pos[i, 1])
+        z1 = max(z1, pos[i, 2])
+    return x0, y0, z0, x1, y1, z1
+
+
+def cell_grid(pos, n, rmax, skin, plo, phi, periodic, max_cells=None, serial=False):
+    """Cell geometry: (lo (3), cell size (3), counts (3) int64).
+
+    ``periodic[a]`` True: the axis spans [plo[a], phi[a]) and needs at least 3 cells.
+    """
+    cut = 2.0 * rmax + skin
+    if n > 0:
+        bb = (bounding_box_s if serial else bounding_box)(pos, n)
+    else:
+        bb = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    lo = np.zeros(3)
+    length = np.zeros(3)
+    for a in range(3):
+        if periodic[a]:
+            lo[a] = plo[a]
+            length[a] = phi[a] - plo[a]
+        else:
+            lo[a] = bb[a] - 1e-9 * max(1.0, abs(bb[a]))
+            length[a] = max(bb[a + 3] - lo[a], 0.0) * (1 + 1e-12) + 1e-300
+    if max_cells is None:
+        max_cells = max(4 * n, 4096)
+    c = cut
+    while True:
+        nc = np.ones(3, dtype=np.int64)
+        for a in range(3):
+            nc[a] = max(1, int(math.floor(length[a] / c)))
+        if int(nc[0]) * int(nc[1]) * int(nc[2]) <= max_cells:
+            break
+        c *= 1.25
+    size = np.where(nc > 0, length / nc, 1.0)
+    size = np.maximum(size, 1e-300)
+    return lo, size, nc
+
+
+@kernel
+def cell_sort(pos, n, lo, size, nc, cell_of, order, cell_start):
+    """Stable counting sort of particles by linear cell index.
+
+    Fills ``cell_of[i]`` (cell of particle i), ``order`` (new position -> old index) and
+    ``cell_start`` (length ncell + 1, prefix sums of the counts in the new order).
+    """
+    ncell = nc[0] * nc[1] * nc[2]
+    for c in range(ncell + 1):
+        cell_start[c] = 0
+    for i in range(n):
+        cx = int((pos[i, 0] - lo[0]) / size[0])
+        cy = int((pos[i, 1] - lo[1]) / size[1])
+        cz = int((pos[i, 2] - lo[2]) / size[2])
+        cx = min(max(cx, 0), nc[0] - 1)
+        cy = min(max(cy, 0), nc[1] - 1)
+        cz = min(max(cz, 0), nc[2] - 1)
+        c = (cx * nc[1] + cy) * nc[2] + cz
+        cell_of[i] = c
+        cell_start[c + 1] += 1
+    for c in range(ncell):
+        cell_start[c + 1] += cell_start[c]
+    # stable placement: use a running cursor per cell (reuse cell_of as storage is not possible)
+    for i in range(n):
+        c = cell_of[i]
+        order[cell_start[c]] = i
+        cell_start[c] += 1
+    for c in range(ncell, 0, -1):
+        cell_start[c] = cell_start[c - 1]
+    cell_start[0] = 0
+    return ncell
+
+
+@kernel(inline="always")
+def _min_image(d, plen):
+    if plen > 0.0:
+        d -= plen * math.floor(d / plen + 0.5)
+    return d
+
+
+@parallel_kernel
+def pair_count(pos, radius, n, skin, lo, size, nc, periodic_len, cell_start, counts):
+    """counts[i] = number of partners j > i within R_i + R_j + skin (sorted particles)."""
+    for i in prange(n):
+        xi = pos[i, 0]
+        yi = pos[i, 1]
+        zi = pos[i, 2]
+        ri = radius[i]
+        cx = min(max(int((xi - lo[0]) / size[0]), 0), nc[0] - 1)
+        cy = min(max(int((yi - lo[1]) / size[1]), 0), nc[1] - 1)
+        cz = min(max(int((zi - lo[2]) / size[2]), 0), nc[2] - 1)
+        me = (cx * nc[1] + cy) * nc[2] + cz
+        cnt = 0
+        for ox in range(-1, 2):
+            ax = cx + ox
+            if periodic_len[0] > 0.0:
+                if nc[0] < 3 and ox != 0 and (ax < 0 or ax >= nc[0]):
+                    continue
+                ax = ax % nc[0]
+            elif ax < 0 or ax >= nc[0]:
+                continue
+            for oy in range(-1, 2):
+                ay = cy + oy
+                if periodic_len[1] > 0.0:
+                    if nc[1] < 3 and oy != 0 and (ay < 0 or ay >= nc[1]):
+                        continue
+                    ay = ay % nc[1]
+                elif ay < 0 or ay >= nc[1]:
+                    continue
+                for oz in range(-1, 2):
+                    az = cz + oz
+                    if periodic_len[2] > 0.0:
+                        if nc[2] < 3 and oz != 0 and (az < 0 or az >= nc[2]):
+                            continue
+                        az = az % nc[2]
+                    elif az < 0 or az >= nc[2]:
+                        continue
+                    c = (ax * nc[1] + ay) * nc[2] + az
+                    if c < me:
+                        continue
+                    for j in range(max(cell_start[c], i + 1), cell_start[c + 1]):
+                        dx = _min_image(pos[j, 0] - xi, periodic_len[0])
+                        dy = _min_image(pos[j, 1] - yi, periodic_len[1])
+                        dz = _min_image(pos[j, 2] - zi, periodic_len[2])
+                        cut = ri + radius[j] + skin
+                        if dx * dx + dy * dy + dz * dz < cut * cut:
+                            cnt += 1
+        counts[i] = cnt
+
+
+@parallel_kernel
+def pair_fill(pos, radius, n, skin, lo, size, nc, periodic_len, cell_start, first_start,
+              pi, pj, capacity):
+    """Write the pairs of particle i at first_start[i]...; returns the needed size and writes
+    nothing when it exceeds ``capacity`` (the caller grows the arrays and calls again)."""
+    need = first_start[n]
+    if need > capacity:
+        return need
+    for i in prange(n):
+        xi = pos[i, 0]
+        yi = pos[i, 1]
+        zi = pos[i, 2]
+        ri = radius[i]
+        cx = min(max(int((xi - lo[0]) / size[0]), 0), nc[0] - 1)
+        cy = min(max(int((yi - lo[1]) / size[1]), 0), nc[1] - 1)
+        cz = min(max(int((zi - lo[2]) / size[2]), 0), nc[2] - 1)
+        me = (cx * nc[1] + cy) * nc[2] + cz
+        k = first_start[i]
+        kend = first_start[i + 1]
+        for ox in range(-1, 2):
+            ax = cx + ox
+            if periodic_len[0] > 0.0:
+                if nc[0] < 3 and ox != 0 and (ax < 0 or ax >= nc[0]):
+                    continue
+                ax = ax % nc[0]
+            elif ax < 0 or ax >= nc[0]:
+                continue
+            for oy in range(-1, 2):
+                ay = cy + oy
+                if periodic_len[1] > 0.0:
+                    if nc[1] < 3 and oy != 0 and (ay < 0 or ay >= nc[1]):
+                        continue
+                    ay = ay % nc[1]
+                elif ay < 0 or ay >= nc[1]:
+                    continue
+                for oz in range(-1, 2):
+                    az = cz + oz
+                    if periodic_len[2] > 0.0:
+                        if nc[2] < 3 and oz != 0 and (az < 0 or az >= nc[2]):
+                            continue
+                        az = az % nc[2]
+                    elif az < 0 or az >= nc[2]:
+                        continue
+                    c = (ax * nc[1] + ay) * nc[2] + az
+                    if c < me:
+                        continue
+                    for j in range(max(cell_start[c], i + 1), cell_start[c + 1]):
+                        dx = _min_image(pos[j, 0] - xi, periodic_len[0])
+                        dy = _min_image(pos[j, 1] - yi, periodic_len[1])
+                        dz = _min_image(pos[j, 2] - zi, periodic_len[2])
+                        cut = ri + radius[j] + skin
+                        if dx * dx + dy * dy + dz * dz < cut * cut and k < kend:
+                            pi[k] = i
+                            pj[k] = j
+                            k += 1
+    return need
+
+
+@kernel
+def prefix_sum(counts, n, start):
+    """start[0] = 0, start[i+1] = start[i] + counts[i]."""
+    start[0] = 0
+    for i in range(n):
+        start[i + 1] = start[i] + counts[i]
+    return start[n]
+
+
+@kernel
+def second_csr(pj, npairs, n, second_start, second_list):
+    """For each particle j the pairs k with pj[k] == j, ascending k (counting sort)."""
+    for i in range(n + 1):
+        second_start[i] = 0
+    for k in range(npairs):
+        second_start[pj[k] + 1] += 1
+    for i in range(n):
+        second_start[i + 1] += second_start[i]
+    for k in range(npairs):
+        j = pj[k]
+        second_list[second_start[j]] = k
+        second_start[j] += 1
+    for i in range(n, 0, -1):
+        second_start[i] = second_start[i - 1]
+    second_start[0] = 0
+
+
+@parallel_kernel
+def remap_history(pi, pj, npairs, hist, old_index, old_pi, old_pj, old_hist, old_first_start,
+                  old_second_start, old_second_list, n_old):
+    """hist[k] = tangential history of pair (pi[k], pj[k]) in the old list (sign-adjusted when
+    the pair's orientation flipped), zero if the pair was not in the old list."""
+    for k in prange(npairs):
+        hist[k, 0] = 0.0
+        hist[k, 1] = 0.0
+        hist[k, 2] = 0.0
+        oa = old_index[pi[k]]
+        ob = old_index[pj[k]]
+        if oa < 0 or ob < 0 or oa >= n_old or ob >= n_old:
+            continue
+        found = False
+        for q in range(old_first_start[oa], old_first_start[oa + 1]):
+            if old_pj[q] == ob:
+                hist[k, 0] = old_hist[q, 0]
+                hist[k, 1] = old_hist[q, 1]
+                hist[k, 2] = old_hist[q, 2]
+                found = True
+                break
+        if not found:
+            for s in range(old_second_start[oa], old_second_start[oa + 1]):
+                q = old_second_list[s]
+                if old_pi[q] == ob:
+                    hist[k, 0] = -old_hist[q, 0]
+                    hist[k, 1] = -old_hist[q, 1]
+                    hist[k, 2] = -old_hist[q, 2]
+                    break
+
+
+@parallel_kernel
+def max_displacement2(pos, ref, n, periodic_len):
+    """max_i |r_i - r_i(at last build)|^2, minimum image along periodic axes."""
+    m = 0.0
+    for i in prange(n):
+        dx = _min_image(pos[i, 0] - ref[i, 0], periodic_len[0])
+        dy = _min_image(pos[i, 1] - ref[i, 1], periodic_len[1])
+        dz = _min_image(pos[i, 2] - ref[i, 2], periodic_len[2])
+        m = max(m, dx * dx + dy * dy + dz * dz)
+    return m
+
+
+def brute_force_pairs(pos, radius, cutoff_extra, periodic_len):
+    """Reference (numpy, O(N^2)): set of (min(id), max(id))-index pairs with
+    |r_ij| < R_i + R_j + cutoff_extra (minimum image)."""
+    n = len(pos)
+    d = pos[None, :, :] - pos[:, None, :]
+    for a in range(3):
+        if periodic_len[a] > 0:
+            d[..., a] -= periodic_len[a] * np.floor(d[..., a] / periodic_len[a] + 0.5)
+    r2 = (d**2).sum(-1)
+    cut = radius[:, None] + radius[None, :] + cutoff_extra
+    ii, jj = np.nonzero((r2 < cut**2) & (np.arange(n)[:, None] < np.arange(n)[None, :]))
+    return set(zip(ii.tolist(), jj.tolist()))
+
+
+bounding_box_s = serial_twin(bounding_box)
+pair_count_s = serial_twin(pair_count)
+pair_fill_s = serial_twin(pair_fill)
+remap_history_s = serial_twin(remap_history)

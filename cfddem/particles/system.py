@@ -1,0 +1,475 @@
+"""ParticleSystem: the Python orchestrator of the DEM engine.
+
+Holds structure-of-arrays particle data with spare capacity, the neighbour list and contact
+history, and advances the system with velocity Verlet (see :mod:`cfddem.particles.integrate`).
+Frame agnostic: it knows gravity, a frame rotation Omega about an axis through ``axis_point``,
+walls and particles.
+
+Particle order is not stable: the arrays are re-sorted by cell at every neighbour rebuild (for
+cache locality) and compacted on removal.  Track particles by ``ids`` (int64, unique, never
+reused).  ``force``/``torque`` hold the contact + wall + gravity + centrifugal force (and the
+torques) of the last evaluation; ``ext_force``/``ext_torque`` are user arrays added at every
+step (they persist until changed) and are not included in ``force``/``torque``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from cfddem.errors import CaseError
+from cfddem.particles import integrate as it
+from cfddem.particles import neighbours as nb
+from cfddem.particles.contact import P_KN, P_KT, LinearContact
+from cfddem.particles.walls import Wall, pack_walls
+
+
+@dataclass
+class StepStatus:
+    """Outcome of :meth:`ParticleSystem.step`.  ``flag``: None, "nan", "overlap" or
+    "overflow_unrecoverable"; ``index``: the particle id concerned (-1 if none); ``value``: the
+    offending quantity; ``message``: one sentence with step, particle, quantity, likely cause."""
+
+    ok: bool = True
+    flag: str | None = None
+    index: int = -1
+    value: float = 0.0
+    message: str = ""
+    steps_done: int = 0
+
+
+_PARTICLE_ARRAYS = ("pos", "vel", "omega", "force", "torque", "radius", "mass", "inertia", "ids",
+                    "ext_force", "ext_torque", "prev", "ref")
+_WALL_ARRAYS = ("whist", "won", "wfn", "wfw", "wtw")
+
+
+class ParticleSystem:
+    """DEM particles, walls, neighbour list and integrator (see module docstring)."""
+
+    #: below this many particles the serial twins of the kernels run (same results, no
+    #: thread start-up cost); tests set it to 0 to exercise the parallel kernels.
+    serial_below: int = 1000
+
+    def __init__(self, *, pp: LinearContact, walls: list[Wall], dt: float,
+                 gravity=(0.0, 0.0, 0.0), omega=(0.0, 0.0, 0.0), axis_point=(0.0, 0.0, 0.0),
+                 periodic=(None, None, None), skin: float | None = None,
+                 capacity: int = 1024, max_overlap_ratio: float = 0.5):
+        if not (dt > 0 and math.isfinite(dt)):
+            raise CaseError("dt", f"time step must be positive, got {dt}")
+        if skin is not None and not skin > 0:
+            raise CaseError("skin", f"must be positive, got {skin}")
+        self.pp = pp
+        self.walls = list(walls)
+        self.dt = float(dt)
+        self.gravity = np.asarray(gravity, float).reshape(3)
+        self.frame_omega = np.asarray(omega, float).reshape(3)
+        self.axis_point = np.asarray(axis_point, float).reshape(3)
+        self.max_overlap_ratio_limit = float(max_overlap_ratio)
+        self._skin_user = skin
+        self._pp_params = pp.params()
+        self._wgeom, self._wref, self._wpar = pack_walls(self.walls)
+        self.nw = len(self.walls)
+        self._plen = np.zeros(3)
+        self._plo = np.zeros(3)
+        self._periodic = [False, False, False]
+        if len(periodic) != 3:
+            raise CaseError("periodic", "needs one entry per axis")
+        for a, p in enumerate(periodic):
+            if p is not None:
+                lo, hi = float(p[0]), float(p[1])
+                if not hi > lo:
+                    raise CaseError("periodic", f"axis {a}: need hi > lo, got ({lo}, {hi})")
+                self._plo[a], self._plen[a] = lo, hi - lo
+                self._periodic[a] = True
+        self._rotating = bool(np.any(self.frame_omega != 0.0))
+        self._Rv = it.rotation_matrix(self.frame_omega, 2.0, 0.5 * self.dt)
+        self._Rw = it.rotation_matrix(self.frame_omega, 1.0, 0.5 * self.dt)
+        self.n = 0
+        self.time = 0.0
+        self.step_count = 0
+        self._next_id = 0
+        self._cap = 0
+        self._alloc_particles(max(int(capacity), 16))
+        # neighbour list: current and previous (for history remap) buffers
+        self._pcap = 0
+        self._npairs = 0
+        self._n_built = 0
+        self._skin_built = 0.0
+        self._cur = self._alloc_pairs(max(4 * self._cap, 64), self._cap)
+        self._old = self._alloc_pairs(16, self._cap)
+        self._need_rebuild = True
+        self._forces_stale = True
+        self._last_ov = 0.0
+        self.n_rebuilds = 0
+        self._fw = np.zeros((max(self.nw, 1), 3))
+        self._tw = np.zeros((max(self.nw, 1), 3))
+
+    # ------------------------------------------------------------------ storage
+    def _alloc_particles(self, cap):
+        old = {k: getattr(self, "_" + k, None) for k in _PARTICLE_ARRAYS + _WALL_ARRAYS}
+        nw = max(self.nw, 1)
+        shapes = dict(pos=(cap, 3), vel=(cap, 3), omega=(cap, 3), force=(cap, 3), torque=(cap, 3),
+                      radius=(cap,), mass=(cap,), inertia=(cap,), ids=(cap,), ext_force=(cap, 3),
+                      ext_torque=(cap, 3), prev=(cap,), ref=(cap, 3), whist=(cap, nw, 3),
+                      won=(cap, nw), wfn=(cap, nw), wfw=(cap, nw, 3), wtw=(cap, nw, 3))
+        dtypes = dict(ids=np.int64, prev=np.int64, won=np.uint8)
+        for k, shp in shapes.items():
+            a = np.zeros(shp, dtype=dtypes.get(k, np.float64))
+            if k in ("mass", "inertia", "radius"):
+                a[:] = 1.0  # harmless values beyond n
+            o = old[k]
+            if o is not None and self.n > 0:
+                a[: self.n] = o[: self.n]
+            setattr(self, "_" + k, a)
+        self._cap = cap
+
+    def _alloc_pairs(self, pcap, cap):
+        return dict(pcap=pcap, pi=np.zeros(pcap, np.int64), pj=np.zeros(pcap, np.int64),
+                    hist=np.zeros((pcap, 3)), pf=np.zeros((pcap, 3)), pta=np.zeros((pcap, 3)),
+                    ptb=np.zeros((pcap, 3)), second_list=np.zeros(pcap, np.int64),
+                    first_start=np.zeros(cap + 1, np.int64), second_start=np.zeros(cap + 1, np.int64),
+                    counts=np.zeros(cap, np.int64))
+
+    # ------------------------------------------------------------------ views
+    pos = property(lambda s: s._pos[: s.n])
+    vel = property(lambda s: s._vel[: s.n])
+    omega = property(lambda s: s._omega[: s.n])
+    force = property(lambda s: s._force[: s.n])
+    torque = property(lambda s: s._torque[: s.n])
+    radius = property(lambda s: s._radius[: s.n])
+    mass = property(lambda s: s._mass[: s.n])
+    inertia = property(lambda s: s._inertia[: s.n])
+    ids = property(lambda s: s._ids[: s.n])
+    ext_force = property(lambda s: s._ext_force[: s.n])
+    ext_torque = property(lambda s: s._ext_torque[: s.n])
+
+    @property
+    def skin(self) -> float:
+        if self._skin_user is not None:
+            return float(self._skin_user)
+        return 0.3 * 2.0 * float(self.radius.max()) if self.n else 0.0
+
+    @property
+    def n_pairs(self) -> int:
+        return self._npairs
+
+    # ------------------------------------------------------------------ particles in/out
+    def add_particles(self, pos, vel, radius, density, omega=None) -> np.ndarray:
+        """Append spheres; returns their new ids.  radius, density: scalars or (m,) arrays.
+        m = rho 4/3 pi R^3, I = 2/5 m R^2.  Positions are wrapped into periodic boxes."""
+        pos = np.atleast_2d(np.asarray(pos, float))
+        m = len(pos)
+        if pos.shape != (m, 3):
+            raise CaseError("pos", f"needs shape (m, 3), got {pos.shape}")
+        vel = np.broadcast_to(np.asarray(vel, float), (m, 3))
+        rad = np.broadcast_to(np.asarray(radius, float), (m,))
+        rho = np.broadcast_to(np.asarray(density, float), (m,))
+        om = np.zeros((m, 3)) if omega is None else np.broadcast_to(np.asarray(omega, float), (m, 3))
+        if m == 0:
+            return np.zeros(0, np.int64)
+        if not np.all(rad > 0):
+            raise CaseError("radius", "particle radii must be positive")
+        if not np.all(rho > 0):
+            raise CaseError("density", "particle densities must be positive")
+        if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(vel)) and np.all(np.isfinite(om))):
+            raise CaseError("pos", "non-finite position, velocity or spin")
+        if self.n + m > self._cap:
+            self._alloc_particles(max(int(1.5 * (self.n + m)), 16))
+        s = slice(self.n, self.n + m)
+        p = pos.copy()
+        for a in range(3):
+            if self._periodic[a]:
+                p[:, a] = self._plo[a] + np.mod(p[:, a] - self._plo[a], self._plen[a])
+        self._pos[s] = p
+        self._vel[s] = vel
+        self._omega[s] = om
+        self._radius[s] = rad
+        self._mass[s] = rho * 4.0 / 3.0 * np.pi * rad**3
+        self._inertia[s] = 0.4 * self._mass[s] * rad**2
+        ids = np.arange(self._next_id, self._next_id + m, dtype=np.int64)
+        self._ids[s] = ids
+        self._next_id += m
+        for k in ("force", "torque", "ext_force", "ext_torque", "ref", "whist", "wfn", "wfw", "wtw"):
+            getattr(self, "_" + k)[s] = 0.0
+        self._won[s] = 0
+        self._prev[s] = -1
+        self.n += m
+        self._need_rebuild = True
+        self._forces_stale = True
+        return ids
+
+    def remove_particles(self, mask) -> tuple[int, float]:
+        """Remove particles where ``mask`` (length n) is True; returns (count, mass removed)."""
+        mask = np.asarray(mask, bool)
+        if mask.shape != (self.n,):
+            raise CaseError("mask", f"needs shape ({self.n},), got {mask.shape}")
+        cnt = int(mask.sum())
+        if cnt == 0:
+            return 0, 0.0
+        removed_mass = float(self.mass[mask].sum())
+        keep = np.nonzero(~mask)[0]
+        k = len(keep)
+        for name in _PARTICLE_ARRAYS + _WALL_ARRAYS:
+            a = getattr(self, "_" + name)
+            a[:k] = a[keep]
+        self.n = k
+        self._need_rebuild = True
+        self._forces_stale = True
+        return cnt, removed_mass
+
+    def overlaps(self, pos, radius) -> np.ndarray:
+        """Would these new spheres overlap existing particles or each other?  (m,) bool."""
+        pos = np.ascontiguousarray(np.atleast_2d(np.asarray(pos, float)))
+        m = len(pos)
+        rad = np.ascontiguousarray(np.broadcast_to(np.asarray(radius, float), (m,)))
+        out = np.zeros(m, np.bool_)
+        if m:
+            it.overlap_check(self._pos, self._radius, self.n, pos, rad, m, self._plen, out)
+        return out
+
+    # ------------------------------------------------------------------ neighbour list
+    def _rebuild(self):
+        n = self.n
+        skin = self.skin
+        rmax = float(self.radius.max()) if n else 0.0
+        cut = 2 * rmax + skin
+        for a in range(3):
+            if self._periodic[a] and self._plen[a] < 2 * cut:
+                raise CaseError("periodic", f"axis {a}: periodic length {self._plen[a]:g} m is "
+                                f"shorter than twice the neighbour cutoff 2*(2 R_max + skin) = {2 * cut:g} m")
+        lo, size, nc = nb.cell_grid(self._pos, n, rmax, skin, self._plo, self._plo + self._plen,
+                                    self._periodic, serial=n < self.serial_below)
+        ncell = int(nc[0] * nc[1] * nc[2])
+        cell_of = np.empty(n, np.int64)
+        order = np.empty(n, np.int64)
+        cell_start = np.empty(ncell + 1, np.int64)
+        nb.cell_sort(self._pos, n, lo, size, nc, cell_of, order, cell_start)
+        # reorder particle arrays by cell (prev keeps each particle's index at the last build)
+        for name in _PARTICLE_ARRAYS + _WALL_ARRAYS:
+            a = getattr(self, "_" + name)
+            a[:n] = a[order]
+        old_index = self._prev[:n].copy()
+        # swap buffers: the current list becomes the old one
+        self._old, self._cur = self._cur, self._old
+        n_old, np_old = self._n_built, self._npairs
+        cur = self._cur
+        if len(cur["first_start"]) < n + 1:
+            cur.update(first_start=np.zeros(self._cap + 1, np.int64),
+                       second_start=np.zeros(self._cap + 1, np.int64),
+                       counts=np.zeros(self._cap, np.int64))
+        ser = n < self.serial_below
+        (nb.pair_count_s if ser else nb.pair_count)(self._pos, self._radius, n, skin, lo, size, nc, self._plen, cell_start,
+                      cur["counts"])
+        need = nb.prefix_sum(cur["counts"], n, cur["first_start"])
+        while True:
+            got = (nb.pair_fill_s if ser else nb.pair_fill)(self._pos, self._radius, n, skin, lo, size, nc, self._plen,
+                               cell_start, cur["first_start"], cur["pi"], cur["pj"], cur["pcap"])
+            if got <= cur["pcap"]:
+                break
+            # overflow: grow (with spare room) and fill again
+            fs, ss, cn = cur["first_start"], cur["second_start"], cur["counts"]
+            cur.update(self._alloc_pairs(int(1.3 * got) + 64, 0))
+            cur.update(first_start=fs, second_start=ss, counts=cn)
+        npairs = int(need)
+        nb.second_csr(cur["pj"], npairs, n, cur["second_start"], cur["second_list"])
+        old = self._old
+        (nb.remap_history_s if ser else nb.remap_history)(cur["pi"], cur["pj"], npairs, cur["hist"], old_index, old["pi"], old["pj"],
+                         old["hist"], old["first_start"], old["second_start"], old["second_list"],
+                         n_old if np_old >= 0 else 0)
+        self._npairs = npairs
+        self._n_built = n
+        self._skin_built = skin
+        self._prev[:n] = np.arange(n)
+        self._ref[:n] = self._pos[:n]
+        self._need_rebuild = False
+        self.n_rebuilds += 1
+
+    # ------------------------------------------------------------------ stepping
+    def _forces(self, kick: bool, dt_hist: float):
+        cur = self._cur
+        ser = self.n < self.serial_below
+        ov_pp = (it.pair_forces_s if ser else it.pair_forces)(self._npairs, cur["pi"], cur["pj"], self._pos, self._vel, self._omega,
+                               self._radius, self._mass, self._inertia, self._pp_params, self._plen,
+                               cur["hist"], cur["pf"], cur["pta"], cur["ptb"], self.dt, dt_hist)
+        g, om, ap = self.gravity, self.frame_omega, self.axis_point
+        bad, ov_w = (it.gather_walls_kick_s if ser else it.gather_walls_kick)(
+            self.n, self._pos, self._vel, self._omega, self._force, self._torque, self._radius,
+            self._mass, self._inertia, self._ext_force, self._ext_torque, cur["pf"], cur["pta"],
+            cur["ptb"], cur["first_start"], cur["second_start"], cur["second_list"],
+            self._wgeom, self._wref, self._wpar, self.nw, self._whist, self._won, self._wfw,
+            self._wtw, self._wfn, g[0], g[1], g[2], om[0], om[1], om[2], ap[0], ap[1], ap[2],
+            self.dt, dt_hist, kick, self._rotating, self._Rv, self._Rw)
+        self._last_ov = max(ov_pp, ov_w)
+        return bad
+
+    def _refresh(self):
+        """After insertion/removal: rebuild and re-evaluate forces at the current state without
+        advancing the tangential springs (dt_hist = 0)."""
+        try:
+            self._rebuild()
+        except MemoryError as exc:
+            return self._fail("overflow_unrecoverable", -1, float("nan"),
+                              f"step {self.step_count}: neighbour list could not grow ({exc})")
+        bad = self._forces(kick=False, dt_hist=0.0)
+        self._forces_stale = False
+        if bad:
+            return self._nan_status()
+        return None
+
+    def step(self, n_steps: int = 1) -> StepStatus:
+        """Advance ``n_steps`` steps of velocity Verlet; stops early on a bad flag."""
+        if self.n == 0:
+            self.time += n_steps * self.dt
+            self.step_count += n_steps
+            return StepStatus(ok=True, steps_done=n_steps)
+        if self._forces_stale or self._need_rebuild:
+            st = self._refresh()
+            if st is not None:
+                return st
+        dt = self.dt
+        for s in range(n_steps):
+            kd = it.kick_drift_s if self.n < self.serial_below else it.kick_drift
+            m2 = kd(self.n, self._pos, self._vel, self._omega, self._force, self._torque,
+                               self._mass, self._inertia, self._ext_force, self._ext_torque, dt,
+                               self._rotating, self._Rv, self._Rw, self._plen, self._plo, self._ref)
+            if m2 > (0.5 * self._skin_built) ** 2 or self._need_rebuild or not math.isfinite(m2):
+                try:
+                    self._rebuild()
+                except MemoryError as exc:
+                    return self._fail("overflow_unrecoverable", -1, float("nan"),
+                                      f"step {self.step_count + 1}: neighbour list could not grow ({exc})",
+                                      s)
+            bad = self._forces(kick=True, dt_hist=dt)
+            self.time += dt
+            self.step_count += 1
+            if bad:
+                st = self._nan_status()
+                st.steps_done = s + 1
+                return st
+            if self._last_ov > self.max_overlap_ratio_limit:
+                who, val = it.worst_overlap(self._npairs, self._cur["pi"], self._cur["pj"], self._pos,
+                                            self._radius, self._plen, self.n, self._wgeom, self.nw)
+                pid = int(self._ids[who]) if who >= 0 else -1
+                return self._fail(
+                    "overlap", pid, float(val),
+                    f"step {self.step_count}: particle id {pid} has overlap/radius = {val:.3g} > "
+                    f"{self.max_overlap_ratio_limit:g}; likely cause: {self._dt_hint()} "
+                    "(or particles inserted into each other / too fast)", s + 1)
+        return StepStatus(ok=True, steps_done=n_steps)
+
+    def _min_tc(self) -> float:
+        if self.n == 0:
+            return float("inf")
+        mmin = float(self.mass.min())
+        tc = self.pp.collision_time(0.5 * mmin)
+        for w in self.walls:
+            tc = min(tc, w.contact.collision_time(mmin))
+        return tc
+
+    def _dt_hint(self) -> str:
+        tc = self._min_tc()
+        return f"time step too large for this stiffness: dt = {self.dt / (tc / 20):.2g} t_c/20"
+
+    def _nan_status(self) -> StepStatus:
+        i = it.first_bad(self.n, self._pos, self._vel, self._omega)
+        pid = int(self._ids[i]) if i >= 0 else -1
+        return self._fail("nan", pid, float("nan"),
+                          f"step {self.step_count}: particle id {pid} has a non-finite position, "
+                          f"velocity or spin; likely cause: {self._dt_hint()}")
+
+    def _fail(self, flag, pid, val, msg, steps_done=0) -> StepStatus:
+        return StepStatus(ok=False, flag=flag, index=pid, value=val, message=msg, steps_done=steps_done)
+
+    # ------------------------------------------------------------------ diagnostics
+    def kinetic_energy(self) -> float:
+        """sum 1/2 m |v|^2 + 1/2 I |w|^2 in this frame."""
+        return float(0.5 * np.sum(self.mass * np.sum(self.vel**2, axis=1))
+                     + 0.5 * np.sum(self.inertia * np.sum(self.omega**2, axis=1)))
+
+    def momentum(self) -> np.ndarray:
+        return np.sum(self.mass[:, None] * self.vel, axis=0)
+
+    def elastic_energy(self) -> float:
+        """Energy stored in contact springs (pair and wall), 1/2 k_n d_n^2 + 1/2 k_t |d_t|^2."""
+        if self.n == 0:
+            return 0.0
+        if self._need_rebuild:
+            self._rebuild()
+        cur = self._cur
+        return float(it.elastic_energy(self._npairs, cur["pi"], cur["pj"], self._pos, self._radius,
+                                       self._plen, cur["hist"], self._pp_params[P_KN],
+                                       self._pp_params[P_KT], self.n, self._wgeom, self.nw,
+                                       np.ascontiguousarray(self._wpar[:, P_KN]),
+                                       np.ascontiguousarray(self._wpar[:, P_KT]), self._whist))
+
+    def max_overlap_ratio(self) -> float:
+        """Max over contacts (pairs and walls) of overlap / min radius at the last evaluation."""
+        return float(self._last_ov)
+
+    def wall_forces(self) -> np.ndarray:
+        """(n_walls, 3) force exerted by the particles on each wall at the last evaluation."""
+        it.reduce_walls(self.n, self.nw, self._won, self._wfw, self._wtw, self._fw, self._tw)
+        return self._fw[: self.nw].copy()
+
+    def wall_torques(self) -> np.ndarray:
+        """(n_walls, 3) torque exerted by the particles on each wall about its reference point."""
+        it.reduce_walls(self.n, self.nw, self._won, self._wfw, self._wtw, self._fw, self._tw)
+        return self._tw[: self.nw].copy()
+
+    def pairs(self) -> np.ndarray:
+        """(n_pairs, 2) current neighbour pairs as particle *ids* (min id, max id)."""
+        if self._need_rebuild and self.n:
+            self._rebuild()
+        cur = self._cur
+        a = self._ids[cur["pi"][: self._npairs]]
+        b = self._ids[cur["pj"][: self._npairs]]
+        return np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1)
+
+    # ------------------------------------------------------------------ restart
+    def get_state(self) -> dict:
+        """Everything needed to continue bit-identically (particles, contact history, lists)."""
+        n = self.n
+        st: dict = dict(n=n, time=self.time, step_count=self.step_count, next_id=self._next_id,
+                        npairs=self._npairs, n_built=self._n_built, skin_built=self._skin_built,
+                        need_rebuild=int(self._need_rebuild), forces_stale=int(self._forces_stale),
+                        last_ov=self._last_ov)
+        for name in _PARTICLE_ARRAYS + _WALL_ARRAYS:
+            st["p_" + name] = getattr(self, "_" + name)[:n].copy()
+        cur = self._cur
+        npairs = self._npairs
+        for name in ("pi", "pj", "hist", "pf", "pta", "ptb", "second_list"):
+            st["l_" + name] = cur[name][:npairs].copy()
+        nbuilt = self._n_built
+        for name in ("first_start", "second_start"):
+            st["l_" + name] = cur[name][: nbuilt + 1].copy()
+        return st
+
+    def set_state(self, state) -> None:
+        n = int(state["n"])
+        if n > self._cap:
+            self.n = 0
+            self._alloc_particles(max(int(1.5 * n), 16))
+        self.n = n
+        for name in _PARTICLE_ARRAYS + _WALL_ARRAYS:
+            a = np.asarray(state["p_" + name])
+            getattr(self, "_" + name)[:n] = a.reshape(getattr(self, "_" + name)[:n].shape)
+        npairs = int(state["npairs"])
+        nbuilt = int(state["n_built"])
+        cur = self._alloc_pairs(max(int(1.3 * npairs) + 64, 64), max(self._cap, nbuilt))
+        for name in ("pi", "pj", "hist", "pf", "pta", "ptb", "second_list"):
+            cur[name][:npairs] = state["l_" + name]
+        for name in ("first_start", "second_start"):
+            cur[name][: nbuilt + 1] = state["l_" + name]
+        self._cur = cur
+        self._old = self._alloc_pairs(16, self._cap)
+        self._npairs = npairs
+        self._n_built = nbuilt
+        self._skin_built = float(state["skin_built"])
+        self._need_rebuild = bool(state["need_rebuild"])
+        self._forces_stale = bool(state["forces_stale"])
+        self._last_ov = float(state["last_ov"])
+        self.time = float(state["time"])
+        self.step_count = int(state["step_count"])
+        self._next_id = int(state["next_id"])

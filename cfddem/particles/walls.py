@@ -1,0 +1,165 @@
+"""Walls: one-sided infinite planes and bounded planar rectangles.
+
+A wall is described to kernels by one float64 row of ``WALL_NGEOM`` numbers (geometry) and one
+contact-parameter row (:mod:`cfddem.particles.contact`).  Geometry row layout::
+
+    [kind, p(3), n(3), a1(3), a2(3), h1, h2, v(3), ref(3)]
+
+``kind`` 0 = infinite plane through p with unit normal n; 1 = rectangle centred at p spanned by
+unit in-plane axes a1, a2 with half-extents h1, h2.  v is the wall velocity (used in the relative
+contact velocity; the geometry does not move yet), ref the point about which the torque exerted
+on the wall is accumulated.  New kinds (cylinders, hopper cones) add a branch in
+:func:`wall_contact` that returns the same (overlap, outward normal, contact point).
+
+One-sided: particles live on the +n side.  For a plane the contact exists while the centre
+height h = (x - p).n satisfies -R < h < R (overlap R - h).  For a rectangle the nearest point q
+of the rectangle to the centre is used: inside the face (|u1| <= h1, |u2| <= h2) this is the
+plane contact; outside, q lies on an edge or corner, the normal is (x - q)/|x - q| and the
+overlap R - |x - q|, for centres on the +n side only (h >= 0).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from cfddem._jit import kernel
+from cfddem.errors import CaseError
+from cfddem.particles.contact import LinearContact
+
+WALL_NGEOM = 20
+KIND_PLANE = 0
+KIND_RECT = 1
+
+
+def _unit(key, v):
+    v = np.asarray(v, dtype=float).reshape(3)
+    nrm = float(np.linalg.norm(v))
+    if not nrm > 0 or not np.isfinite(nrm):
+        raise CaseError(key, f"needs a non-zero finite vector, got {v.tolist()}")
+    return v / nrm
+
+
+@dataclass
+class Wall:
+    """Base wall: contact parameters, velocity, reference point for the torque on the wall."""
+
+    contact: LinearContact
+    velocity: tuple = (0.0, 0.0, 0.0)
+    ref_point: tuple | None = None
+    name: str = ""
+
+    def geometry(self) -> np.ndarray:  # pragma: no cover - overridden
+        raise NotImplementedError
+
+
+@dataclass
+class PlaneWall(Wall):
+    """Infinite one-sided plane through ``point`` with normal ``normal`` (towards the particles)."""
+
+    point: tuple = (0.0, 0.0, 0.0)
+    normal: tuple = (0.0, 1.0, 0.0)
+
+    def geometry(self) -> np.ndarray:
+        g = np.zeros(WALL_NGEOM)
+        g[0] = KIND_PLANE
+        g[1:4] = np.asarray(self.point, float)
+        g[4:7] = _unit("wall.normal", self.normal)
+        g[14] = g[15] = np.inf
+        g[16:19] = np.asarray(self.velocity, float)
+        # ref stored separately (see pack_walls)
+        return g
+
+
+@dataclass
+class RectangleWall(Wall):
+    """Bounded one-sided rectangle: centre ``point``, ``normal``, in-plane ``axis1`` (``axis2`` =
+    normal x axis1), half-extents ``half1``, ``half2``."""
+
+    point: tuple = (0.0, 0.0, 0.0)
+    normal: tuple = (0.0, 1.0, 0.0)
+    axis1: tuple = (1.0, 0.0, 0.0)
+    half1: float = 1.0
+    half2: float = 1.0
+
+    def geometry(self) -> np.ndarray:
+        n = _unit("wall.normal", self.normal)
+        a1 = np.asarray(self.axis1, float)
+        a1 = a1 - np.dot(a1, n) * n
+        a1 = _unit("wall.axis1 (in-plane part)", a1)
+        a2 = np.cross(n, a1)
+        if not (self.half1 > 0 and self.half2 > 0):
+            raise CaseError("wall.half", f"half-extents must be positive, got {self.half1}, {self.half2}")
+        g = np.zeros(WALL_NGEOM)
+        g[0] = KIND_RECT
+        g[1:4] = np.asarray(self.point, float)
+        g[4:7] = n
+        g[7:10] = a1
+        g[10:13] = a2
+        g[13] = self.half1
+        g[14] = self.half2
+        g[16:19] = np.asarray(self.velocity, float)
+        return g
+
+
+def pack_walls(walls: list[Wall]):
+    """(geometry rows (nw, WALL_NGEOM), reference points (nw, 3), contact rows (nw, NPARAM))."""
+    nw = len(walls)
+    geom = np.zeros((max(nw, 1), WALL_NGEOM))
+    ref = np.zeros((max(nw, 1), 3))
+    par = np.zeros((max(nw, 1), 8))
+    for k, w in enumerate(walls):
+        geom[k] = w.geometry()
+        ref[k] = np.asarray(w.ref_point if w.ref_point is not None else w.point, float)
+        par[k] = w.contact.params()
+    return geom, ref, par
+
+
+@kernel(inline="always")
+def wall_contact(g, x, y, z, r):
+    """Contact of a sphere (centre x, y, z, radius r) with wall geometry row ``g``.
+
+    Returns (overlap, nx, ny, nz, qx, qy, qz): overlap > 0 means contact, n the unit normal from
+    the wall towards the sphere centre, q the contact point on the wall.
+    """
+    kind = g[0]
+    px = x - g[1]
+    py = y - g[2]
+    pz = z - g[3]
+    nx, ny, nz = g[4], g[5], g[6]
+    h = px * nx + py * ny + pz * nz
+    if kind == 0.0:
+        if h <= -r or h >= r:
+            return -1.0, nx, ny, nz, 0.0, 0.0, 0.0
+        return r - h, nx, ny, nz, x - h * nx, y - h * ny, z - h * nz
+    # rectangle
+    if h >= r or h <= -r:
+        return -1.0, nx, ny, nz, 0.0, 0.0, 0.0
+    u1 = px * g[7] + py * g[8] + pz * g[9]
+    u2 = px * g[10] + py * g[11] + pz * g[12]
+    h1 = g[13]
+    h2 = g[14]
+    c1 = min(max(u1, -h1), h1)
+    c2 = min(max(u2, -h2), h2)
+    qx = g[1] + c1 * g[7] + c2 * g[10]
+    qy = g[2] + c1 * g[8] + c2 * g[11]
+    qz = g[3] + c1 * g[9] + c2 * g[12]
+    if c1 == u1 and c2 == u2:
+        return r - h, nx, ny, nz, qx, qy, qz
+    if h < 0.0:
+        return -1.0, nx, ny, nz, 0.0, 0.0, 0.0
+    dx = x - qx
+    dy = y - qy
+    dz = z - qz
+    d = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if d >= r or d == 0.0:
+        return -1.0, nx, ny, nz, 0.0, 0.0, 0.0
+    return r - d, dx / d, dy / d, dz / d, qx, qy, qz
+
+
+@kernel
+def wall_contact_py(g, x, r):
+    """Test helper: :func:`wall_contact` for one sphere, returning a tuple."""
+    return wall_contact(g, x[0], x[1], x[2], r)
