@@ -1,11 +1,12 @@
 """Command-line interface: a thin layer over the Python API.
 
-    cfddem run CASE [--out DIR] [--set K=V]... [--end-time T] [--overwrite] [--threads N] [--force]
+    cfddem run CASE [--out DIR] [--set K=V]... [--end-time T] [--overwrite | --resume] [--threads N] [--force]
     cfddem check CASE [--set K=V]...
     cfddem report OUT
 
 Exit codes: 0 success, 2 bad input (one line on stderr), 3 a run that failed (blow-up or solver
-failure, with its message).
+failure, with its message), 128 + signal number for a run stopped by SIGINT/SIGTERM (after
+writing a checkpoint).
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="override a case key, e.g. --set particles.diameter=0.004 (value parsed as TOML)")
     r.add_argument("--end-time", type=float, help="stop at this simulated time (s), overriding time.end_time")
     r.add_argument("--overwrite", action="store_true", help="replace an existing run folder")
+    r.add_argument("--resume", action="store_true", help="continue the run in --out from its newest checkpoint")
     r.add_argument("--threads", type=int, help="numba threads (default: time.threads, 0 = all cores)")
     r.add_argument("--force", action="store_true", help="run even when dt > t_c/5")
     r.add_argument("--quiet", action="store_true", help="no progress line, log to file only")
@@ -91,11 +93,17 @@ def _dispatch(args) -> int:
         if args.end_time is not None:
             overrides.append(f"time.end_time={args.end_time!r}")
         case = load_case(args.case, overrides=overrides)
-        sim = Simulation(case, out_dir=args.out, overwrite=args.overwrite,
+        if args.resume and args.overwrite:
+            raise CaseError("--resume", "cannot be combined with --overwrite")
+        sim = Simulation(case, out_dir=args.out, overwrite=args.overwrite, resume=args.resume,
                          threads=args.threads, echo=not args.quiet, progress=not args.quiet)
         summary = sim.run()
         print(f"cfddem: {summary.status}: t = {summary.time:.4g} s, {summary.steps} steps, "
               f"{summary.wall_time:.1f} s wall; results in {summary.out_dir}")
+        if summary.message:
+            print(f"cfddem: {summary.message}")
+        if summary.status == "interrupted" and sim._signal is not None:
+            return 128 + int(sim._signal)
         return 0
     if args.command == "report":
         from pathlib import Path

@@ -99,6 +99,11 @@ SCHEMA: dict[str, dict] = {
         "progress_interval": _pos(1.0, "s (wall)", "interval of the progress line"),
         "plots": Key("bool", True, "-", "write the PNG report under OUT/report/ at the end"),
     },
+    "checkpoint": {
+        "interval": _nonneg(0.0, "s", "checkpoint every this much simulated time (0: off)"),
+        "wall_interval": _nonneg(600.0, "s (wall)", "checkpoint every this much wall time (0: off)"),
+        "keep": Key("int", 2, "-", "number of newest checkpoints kept", lo=1),
+    },
     "gravity": {
         "g": _nonneg(9.81, "m/s^2", "magnitude of gravity"),
         "inclination_deg": _f(0.0, "deg", "chute inclination theta: gravity = g (0, -cos theta, sin theta) in chute axes "
@@ -166,7 +171,6 @@ SCHEMA: dict[str, dict] = {
         "cell_x": _pos(0.005, "m", "measurement cell size across the chute"),
         "cell_z": _pos(0.006, "m", "measurement cell size along the chute"),
         "n_top": Key("int", 6, "-", "topmost particles per cell for the surface velocity", lo=1),
-        "bin_z": _pos(0.02, "m", "streamwise bin of the mean velocity along the chute"),
     },
     "gas": {
         "enabled": Key("bool", False, "-", "solve the interstitial gas (two-way coupled)"),

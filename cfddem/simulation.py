@@ -12,8 +12,11 @@ Python API (the CLI is a thin layer over it)::
 from __future__ import annotations
 
 import json
+import logging
 import math
 import shutil
+import signal
+import threading
 import time as _time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -96,32 +99,31 @@ def prepare_out_dir(out: Path, overwrite: bool) -> None:
 class Simulation:
     """One run of a case.  ``run()`` returns a :class:`RunSummary` (and raises
     :class:`RunError` on blow-up, after writing everything written so far plus a diagnostic
-    snapshot)."""
+    snapshot).  ``resume=True`` continues the run in ``out_dir`` from its newest valid
+    checkpoint; the result is bit-identical to an uninterrupted run (same machine and threads).
+    SIGINT and SIGTERM write a checkpoint and end the run cleanly (status "interrupted")."""
 
     def __init__(self, case: Case, out_dir: str | Path | None = None, *, overwrite: bool = False,
-                 end_time: float | None = None, threads: int | None = None, echo: bool = True,
-                 progress: bool = True):
+                 resume: bool = False, threads: int | None = None, echo: bool = True, progress: bool = True):
         self.case = case
         self.out = Path(out_dir) if out_dir is not None else case.path / "output"
         self.overwrite = overwrite
-        self.end_time = float(end_time) if end_time is not None else case.time.end_time
-        if self.end_time <= 0:
-            raise CaseError("--end-time", f"{self.end_time:g} must be positive")
+        self.resume = resume
+        self.end_time = case.time.end_time
         self.threads = threads if threads is not None else case.time.threads
         self.echo = echo
         self.show_progress = progress
         self.dt = case.time.dt
-        self.timings = {"particles": 0.0, "inlet_exit": 0.0, "measurements": 0.0, "output": 0.0, "gas": 0.0,
-                        "coupling": 0.0}
-        self.mass_out = 0.0
-        self.count_out = 0
-        self.mass_lost = 0.0
-        self.count_lost = 0
+        self.timings = {"particles": 0.0, "inlet_exit": 0.0, "measurements": 0.0, "output": 0.0,
+                        "checkpoints": 0.0, "gas": 0.0, "coupling": 0.0}
+        self.counters = {"mass_out": 0.0, "count_out": 0, "mass_lost": 0.0, "count_lost": 0}
         self._built = False
+        self._signal: int | None = None
+        self.log = logging.getLogger("cfddem")
 
     # ------------------------------------------------------------------------------- set-up
     def build(self) -> None:
-        """Build the particle system, inlet and measurements (no files written)."""
+        """Build the particle system, inlet, measurements and schedules (no files written)."""
         from .particles.inlets import SluiceInlet
         from .particles.system import ParticleSystem
 
@@ -143,18 +145,14 @@ class Simulation:
             periodic=periodic,
             skin=case.particles.skin or None,
             max_overlap_ratio=case.particles.max_overlap_ratio,
-            capacity=max(1024, expected_particles(case)),
+            capacity=max(1024, int(1.2 * expected_particles(case))),
         )
         init = initial_particles(case)
         if len(init["pos"]):
-            n = len(init["pos"])
             if self.system.overlaps(init["pos"], init["radius"]).any():
                 raise CaseError("particles.initial", "initial particles overlap each other")
             self.system.add_particles(init["pos"], init["vel"], init["radius"], case.particles.density,
                                       omega=init["omega"])
-            self.mass_initial = float(np.sum(self.system.mass[:n]))
-        else:
-            self.mass_initial = 0.0
         self.inlet = None
         if case.inlet.type == "sluice":
             dmax = max(case.particles.diameter, case.particles.diameter_max)
@@ -169,145 +167,249 @@ class Simulation:
             m = case.measurements
             self.measure = ChuteMeasurements(
                 width=case.geometry.width, z_range=(case.geometry.z_start, case.exit.z), start_time=m.start_time,
-                stations=tuple(m.stations), sensors_x=tuple(m.sensors_x), cell_x=m.cell_x, cell_z=m.cell_z,
-                n_top=m.n_top, bin_z=m.bin_z)
+                stations=tuple(m.stations), sensor_x=tuple(m.sensors_x), dx=m.cell_x, dz=m.cell_z, n_top=m.n_top)
         self.gas = None
         if case.gas.enabled:
-            from .coupling.exchange import build_coupled_gas
-
-            self.gas = build_coupled_gas(case, self.system)
+            try:
+                from .coupling.exchange import build_coupled_gas
+            except ImportError:
+                raise CaseError("gas.enabled", "the coupled gas solver is not available in this version") from None
+            self.gas = build_coupled_gas(case, self.system, self.log)
+        o = case.output
+        self.schedules = {
+            "series": Schedule(o.series_interval),
+            "snapshot": Schedule(o.snapshot_interval),
+            "vtk": Schedule(o.vtk_interval or o.snapshot_interval),
+            "measure": Schedule(case.measurements.interval, start=case.measurements.start_time),
+        }
+        if case.checkpoint.interval > 0:
+            self.schedules["checkpoint"] = Schedule(case.checkpoint.interval, start=case.checkpoint.interval)
         self._built = True
 
+    # ------------------------------------------------------------------------------- state
+    def get_state(self) -> dict:
+        """The complete evolving state (what a checkpoint holds)."""
+        st = {
+            "system": self.system.get_state(),
+            "schedules": {k: np.int64(v.k) for k, v in self.schedules.items()},
+            "counters": dict(self.counters),
+            "timings": dict(self.timings),
+            "clock": {"time": float(self.system.time), "step": int(self.system.step_count)},
+        }
+        if self.inlet is not None:
+            st["inlet"] = self.inlet.get_state()
+        if self.measure is not None:
+            st["measure"] = self.measure.get_state()
+        if self.gas is not None:
+            st["gas"] = self.gas.get_state()
+        return st
+
+    def set_state(self, st: dict) -> None:
+        self.system.set_state(st["system"])
+        for k, v in st["schedules"].items():
+            if k in self.schedules:
+                self.schedules[k].k = int(v)
+        self.counters.update({k: type(self.counters[k])(v) for k, v in st["counters"].items()})
+        self.timings.update({k: float(v) for k, v in st.get("timings", {}).items() if k in self.timings})
+        if self.inlet is not None:
+            self.inlet.set_state(st["inlet"])
+        if self.measure is not None and "measure" in st:
+            self.measure.set_state(st["measure"])
+        if self.gas is not None:
+            self.gas.set_state(st["gas"])
+
+    def write_checkpoint(self) -> Path:
+        from .io.checkpoint import write_checkpoint
+
+        t0 = _time.perf_counter()
+        path = write_checkpoint(self.out / "checkpoints", self.system.step_count, self.get_state(),
+                                keep=self.case.checkpoint.keep)
+        self.timings["checkpoints"] += _time.perf_counter() - t0
+        self.log.info("checkpoint at t = %.6g s, step %d: %s", self.system.time, self.system.step_count, path.name)
+        return path
+
     # ------------------------------------------------------------------------------- the run
-    def run(self) -> RunSummary:
-        from .io.log import Progress, setup_run_logger
+    def _open_outputs(self):
+        from .io.checkpoint import latest_checkpoint, truncate_results
+        from .io.log import setup_run_logger
         from .io.results import ResultsFile
-        from .io.vtk import PvdIndex, write_particles_vtu, write_walls_vtu
+        from .io.vtk import ParaViewOutput
 
         case = self.case
-        check_time_step(case, log=None)
-        prepare_out_dir(self.out, self.overwrite)
-        log = setup_run_logger(self.out, echo=self.echo)
-        self.log = log
-        t_wall0 = _time.perf_counter()
-        (self.out / "case.resolved.toml").write_text(case.to_toml())
-        (self.out / RUN_MARKER).write_text(
-            '{"program": "cfddem", "version": "%s", "case": "%s", "status": "running"}\n' % (__version__, case.name))
-        log.info("cfddem %s: case %s -> %s", __version__, case.name, self.out)
+        if self.resume:
+            if not (self.out / RUN_MARKER).exists():
+                raise CaseError("--resume", f"{self.out} holds no cfddem run to resume")
+            found = latest_checkpoint(self.out / "checkpoints")
+            if found is None:
+                raise CaseError("--resume", f"no valid checkpoint in {self.out / 'checkpoints'}")
+            ckpt_path, state = found
+        else:
+            prepare_out_dir(self.out, self.overwrite)
+        self.log = setup_run_logger(self.out, stderr=self.echo)
         if not self._built:
             self.build()
-        log.info("threads: %d", get_threads())
-        for line in describe_case(case):
-            log.info(line)
-
-        res = ResultsFile(self.out / "results.h5", mode="w")
-        res.write_config(case.raw_text, case.resolved)
+        if self.resume:
+            self.set_state(state)
+            t = self.system.time
+            truncate_results(self.out / "results.h5", t)
+            self.log.info("resuming from %s at t = %.6g s, step %d", ckpt_path.name, t, self.system.step_count)
+            res = ResultsFile(self.out / "results.h5", mode="a")
+        else:
+            check_disk_space(case, self.out)
+            (self.out / "case.resolved.toml").write_text(case.to_toml())
+            res = ResultsFile(self.out / "results.h5", mode="w")
+            res.write_config(case.raw_text, case.resolved)
+        (self.out / RUN_MARKER).write_text(json.dumps({"program": "cfddem", "version": __version__,
+                                                       "case": case.name, "status": "running"}))
         res.write_metadata(version=__version__, case=case.name, threads=get_threads(), dt=self.dt,
                            end_time=self.end_time, started=_time.strftime("%Y-%m-%dT%H:%M:%S"))
-        vtk_dir = self.out / "vtk"
+        pv = None
         if case.output.vtk:
-            vtk_dir.mkdir(exist_ok=True)
-            pvd = PvdIndex(vtk_dir / "particles.pvd")
-            wall_quads = [w.corners(size=0.1) for w in self.walls]
-            if wall_quads:
-                write_walls_vtu(vtk_dir / "walls.vtu", wall_quads)
+            pv = ParaViewOutput(self.out, append=self.resume, restart_time=self.system.time if self.resume else None)
+            quads = [w.corners(size=0.1) for w in self.walls]
+            if quads:
+                pv.set_walls(quads)
+        return res, pv
+
+    def _install_signals(self):
+        if threading.current_thread() is not threading.main_thread():
+            return {}
+
+        def handler(signum, frame):
+            self._signal = signum
+
+        old = {}
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            old[sig] = signal.signal(sig, handler)
+        return old
+
+    def run(self) -> RunSummary:
+        from .io.log import Progress
+
+        case = self.case
+        check_time_step(case)
+        res, pv = self._open_outputs()
+        log = self.log
+        log.info("cfddem %s: case %s -> %s (threads: %d)", __version__, case.name, self.out, get_threads())
+        for line in describe_case(case):
+            log.info(line)
+        check_time_step(case, log=log)
+        t_wall0 = _time.perf_counter()
         dt = self.dt
         sys_ = self.system
-        series = Schedule(case.output.series_interval)
-        snaps = Schedule(case.output.snapshot_interval)
-        vtks = Schedule(case.output.vtk_interval or case.output.snapshot_interval)
-        meas = Schedule(case.measurements.interval, start=case.measurements.start_time)
+        sch = self.schedules
         exit_every = max(1, int(round(1e-3 / dt)))  # exit/lost check every ~1 ms of simulated time
         max_steps = case.time.max_steps or None
         wall_limit = case.time.wall_time_limit or None
-        progress = Progress(end_time=self.end_time, interval=case.output.progress_interval,
-                            enabled=self.show_progress)
-        snap_k = 0
-        vtk_k = 0
+        wall_ckpt = case.checkpoint.wall_interval or None
+        last_ckpt_wall = _time.perf_counter()
+        progress = Progress(end_time=self.end_time, interval=case.output.progress_interval) \
+            if self.show_progress else None
         status, message = "done", ""
-        steps_at_start = sys_.step_count
+        old_handlers = self._install_signals()
 
-        def outputs(force_all=False):
-            nonlocal snap_k, vtk_k
+        def outputs(final=False):
             t0 = _time.perf_counter()
             t = sys_.time
-            if series.due(t, dt) or force_all:
+            if sch["series"].due(t, dt) or final:
                 res.append_series(**self._series_row())
-                series.advance(t, dt)
-            if snaps.due(t, dt) or force_all:
+                sch["series"].advance(t, dt)
+            if sch["snapshot"].due(t, dt):
                 res.write_snapshot(t, sys_.step_count, pos=sys_.pos, vel=sys_.vel, omega=sys_.omega,
                                    radius=sys_.radius, ids=sys_.ids)
-                snap_k += 1
-                snaps.advance(t, dt)
-            if case.output.vtk and (vtks.due(t, dt) or force_all):
-                name = f"particles_{vtk_k:06d}.vtu"
-                write_particles_vtu(vtk_dir / name, sys_.pos, sys_.radius, vel=sys_.vel, omega=sys_.omega,
-                                    ids=sys_.ids)
-                pvd.add(t, name)
-                vtk_k += 1
-                vtks.advance(t, dt)
+                sch["snapshot"].advance(t, dt)
+                if self.measure is not None and self.measure.n_samples:
+                    # the averages so far, so that a killed run keeps them
+                    res.write_measurements(self.measure.group, self.measure.results(), self.measure.attrs())
+            if pv is not None and (sch["vtk"].due(t, dt) or final):
+                pv.write(t, sys_.pos, sys_.radius, vel=sys_.vel, omega=sys_.omega, ids=sys_.ids,
+                         gas=self.gas.vtk_fields() if self.gas is not None else None)
+                sch["vtk"].advance(t, dt)
             res.flush()
             self.timings["output"] += _time.perf_counter() - t0
 
         try:
-            self._feed_and_drain()
-            outputs()
+            if not self.resume:
+                self._feed_and_drain()
+                outputs()
             while sys_.time < self.end_time - 0.5 * dt:
-                # steps to the next event
                 t = sys_.time
-                targets = [self.end_time, series.next_time, snaps.next_time, meas.next_time]
-                if case.output.vtk:
-                    targets.append(vtks.next_time)
+                targets = [self.end_time] + [s.next_time for s in sch.values()]
                 if self.inlet is not None and self.inlet.start_time <= t < self.inlet.end_time:
                     targets.append(self.inlet._due_time(self.inlet.layers_done))
-                t_next = min(x for x in targets if x > t + 0.5 * dt) if any(x > t + 0.5 * dt for x in targets) \
-                    else t + dt
-                n = max(1, int(round((t_next - t) / dt)))
+                later = [x for x in targets if x > t + 0.5 * dt]
+                n = max(1, int(round((min(later) - t) / dt))) if later else 1
                 n = min(n, exit_every - (sys_.step_count % exit_every))
                 if max_steps is not None:
-                    n = min(n, max_steps - (sys_.step_count - steps_at_start))
+                    n = max(1, min(n, max_steps - sys_.step_count))
                 t0 = _time.perf_counter()
-                if self.gas is not None:
-                    st = self.gas.advance(n)
-                else:
-                    st = sys_.step(n)
+                st = self.gas.advance(n, self.timings) if self.gas is not None else sys_.step(n)
                 self.timings["particles"] += _time.perf_counter() - t0
                 if not st.ok:
                     raise RunError(st.message)
                 self._feed_and_drain()
-                if self.measure is not None and meas.due(sys_.time, dt):
+                if self.measure is not None and sch["measure"].due(sys_.time, dt):
                     t0 = _time.perf_counter()
-                    self.measure.sample(sys_.time, sys_.pos, sys_.vel, sys_.radius)
-                    meas.advance(sys_.time, dt)
+                    self.measure.measure(sys_.time, sys_.pos, sys_.vel, sys_.radius)
+                    sch["measure"].advance(sys_.time, dt)
                     self.timings["measurements"] += _time.perf_counter() - t0
                 outputs()
-                progress.update(sys_.time, sys_.n, sys_.step_count)
-                if max_steps is not None and sys_.step_count - steps_at_start >= max_steps:
+                if progress is not None:
+                    progress.update(sys_.time, sys_.n, sys_.step_count)
+                ck = sch.get("checkpoint")
+                if ck is not None and ck.due(sys_.time, dt):
+                    ck.advance(sys_.time, dt)
+                    self.write_checkpoint()
+                    last_ckpt_wall = _time.perf_counter()
+                elif wall_ckpt is not None and _time.perf_counter() - last_ckpt_wall >= wall_ckpt:
+                    self.write_checkpoint()
+                    last_ckpt_wall = _time.perf_counter()
+                if self._signal is not None:
+                    name = signal.Signals(self._signal).name
+                    self.write_checkpoint()
+                    status, message = "interrupted", f"{name} received: checkpoint written at t = {sys_.time:.6g} s " \
+                                                     f"(continue with --resume)"
+                    break
+                if max_steps is not None and sys_.step_count >= max_steps:
                     status, message = "stopped", f"step limit reached ({max_steps} steps)"
                     break
                 if wall_limit is not None and _time.perf_counter() - t_wall0 >= wall_limit:
-                    status, message = "stopped", f"wall-time limit reached ({wall_limit:g} s)"
+                    self.write_checkpoint()
+                    status, message = "stopped", f"wall-time limit reached ({wall_limit:g} s); checkpoint written"
                     break
         except RunError as e:
-            progress.close()
+            if progress is not None:
+                progress.close()
             status, message = "failed", str(e)
             log.error("run failed at t = %.6g s, step %d: %s", sys_.time, sys_.step_count, message)
             try:
-                res.write_snapshot(sys_.time, sys_.step_count, group="diagnostic", pos=sys_.pos, vel=sys_.vel,
-                                   omega=sys_.omega, radius=sys_.radius, ids=sys_.ids)
                 res.append_series(**self._series_row())
+                res.write_measurements("diagnostic", {"pos": sys_.pos.copy(), "vel": sys_.vel.copy(),
+                                                      "omega": sys_.omega.copy(), "radius": sys_.radius.copy(),
+                                                      "ids": sys_.ids.copy()},
+                                       {"time": sys_.time, "step": sys_.step_count, "message": message})
             except Exception as e2:  # the diagnostic must never hide the real error
                 log.error("could not write the diagnostic snapshot: %s", e2)
+            self._restore_signals(old_handlers)
             self._finish(res, status, message, t_wall0)
             raise RunError(message) from None
-        progress.close()
-        outputs(force_all=False)
+        if progress is not None:
+            progress.close()
+        self._restore_signals(old_handlers)
+        if status == "done":
+            outputs(final=True)
         return self._finish(res, status, message, t_wall0)
+
+    @staticmethod
+    def _restore_signals(old):
+        for sig, h in old.items():
+            signal.signal(sig, h)
 
     # ------------------------------------------------------------------------------- helpers
     def _feed_and_drain(self) -> None:
         t0 = _time.perf_counter()
         sys_ = self.system
+        c = self.counters
         if self.inlet is not None:
             self.inlet.insert(sys_, sys_.time, self.dt)
         if sys_.n:
@@ -315,25 +417,25 @@ class Simulation:
             if self.case.geometry.type == "chute":
                 out = pos[:, 2] > self.case.exit.z
                 if out.any():
-                    c, m = sys_.remove_particles(out)
-                    self.count_out += c
-                    self.mass_out += m
+                    k, m = sys_.remove_particles(out)
+                    c["count_out"] += k
+                    c["mass_out"] += m
                     pos = sys_.pos
             margin = self.case.exit.lost_margin
             lost = np.any((pos < self.box_lo - margin) | (pos > self.box_hi + margin), axis=1)
             if lost.any():
-                c, m = sys_.remove_particles(lost)
-                self.count_lost += c
-                self.mass_lost += m
-                self.log.warning("t = %.4f s: %d particle(s) left the domain and were removed as lost",
-                                 sys_.time, c)
+                k, m = sys_.remove_particles(lost)
+                c["count_lost"] += k
+                c["mass_lost"] += m
+                self.log.warning("t = %.4f s: %d particle(s) left the domain and were removed as lost", sys_.time, k)
         self.timings["inlet_exit"] += _time.perf_counter() - t0
 
     def _series_row(self) -> dict:
         s = self.system
+        c = self.counters
         mass_in = self.inlet.mass_inserted if self.inlet is not None else 0.0
         row = dict(time=s.time, step=float(s.step_count), n_particles=float(s.n), mass_in=mass_in,
-                   mass_out=self.mass_out, mass_lost=self.mass_lost,
+                   mass_out=c["mass_out"], mass_lost=c["mass_lost"],
                    mass_present=float(np.sum(s.mass)) if s.n else 0.0,
                    kinetic_energy=s.kinetic_energy(), max_overlap_ratio=s.max_overlap_ratio(),
                    mean_velocity_z=float(np.mean(s.vel[:, 2])) if s.n else 0.0)
@@ -346,16 +448,20 @@ class Simulation:
         s = self.system
         if self.measure is not None:
             try:
-                for name, arr in self.measure.results().items():
-                    res.write_measurements(name, arr)
+                res.write_measurements(self.measure.group, self.measure.results(), self.measure.attrs())
             except Exception as e:  # keep what is written; say why
                 self.log.error("could not store the measurements: %s", e)
+        if self.gas is not None:
+            try:
+                self.gas.write_measurements(res)
+            except Exception as e:
+                self.log.error("could not store the gas measurements: %s", e)
         timings = dict(self.timings)
         timings["total"] = wall
         summary = RunSummary(status=status, out_dir=str(self.out), time=s.time, steps=s.step_count,
                              wall_time=wall, n_particles=s.n,
                              mass_in=self.inlet.mass_inserted if self.inlet is not None else 0.0,
-                             mass_out=self.mass_out, message=message, timings=timings)
+                             mass_out=self.counters["mass_out"], message=message, timings=timings)
         res.write_metadata(status=status, message=message, wall_time=wall, steps=s.step_count,
                            **{f"time_{k}": v for k, v in timings.items()})
         res.close()
@@ -376,6 +482,21 @@ class Simulation:
             except Exception as e:
                 self.log.error("could not write the plots: %s", e)
         return summary
+
+
+def check_disk_space(case: Case, out: Path) -> None:
+    """Fail early when the disk cannot hold the run's estimated output."""
+    n = max(expected_particles(case), 1)
+    T = case.time.end_time
+    o = case.output
+    per_snap = n * 13 * 8
+    n_snap = T / o.snapshot_interval
+    n_vtk = T / (o.vtk_interval or o.snapshot_interval) if o.vtk else 0
+    need = per_snap * n_snap * 0.7 + n * 120 * n_vtk + 3 * memory_estimate(n)
+    free = shutil.disk_usage(out).free
+    if free < need:
+        raise CaseError("--out", f"only {free / 2**20:.0f} MiB free on the disk of {out}, the run needs about "
+                                 f"{need / 2**20:.0f} MiB (snapshots, VTU frames, checkpoints)")
 
 
 # ----------------------------------------------------------------------------------------------
