@@ -155,7 +155,7 @@ SCHEMA: dict[str, dict] = {
         "z": Key("float", None, "m", "upstream edge of the sluice (default: geometry.z_start)"),
         "start_time": _nonneg(0.0, "s", "feeding starts"),
         "end_time": _pos(INF, "s", "feeding stops"),
-        "gap": _nonneg(0.02, "-", "extra lattice spacing as a fraction of the diameter (keeps new particles apart)"),
+        "gap": _nonneg(0.1, "-", "extra bcc lattice spacing as a fraction of the diameter: room for the settling of the previous layer, so new layers do not wait"),
     },
     "exit": {
         "z": Key("float", None, "m", "particles with z beyond this plane leave the simulation "
