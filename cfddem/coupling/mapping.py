@@ -42,6 +42,10 @@ interpolation reads face 0 for face n, so the pair stays exactly adjoint.  A non
 axis with a single cell has no interior face; the normal component is then dropped
 (deposited and interpolated as zero).
 
+:class:`MappingPlan` computes the weights and the particle sort once per location for one
+particle configuration and reuses them for every field of a coupling step; the module
+functions build a plan per call.
+
 Race-free, thread-independent deposition: particles are counting-sorted by their lower
 node ("bin") in serial; a ``prange`` loop over grid nodes then gathers from the particles of
 the (at most 2 x 2 x 2) bins that can reach that node, in a fixed order.  Each node is
@@ -60,6 +64,7 @@ from cfddem.errors import CaseError
 
 __all__ = [
     "GridSpec",
+    "MappingPlan",
     "as_grid_spec",
     "LOCATIONS",
     "node_shape",
@@ -392,19 +397,118 @@ def _weights(spec: GridSpec, location: str, pos: np.ndarray, periodic: tuple) ->
     return _Weights(ax, a0, a1, w0, w1, key)
 
 
-def _gather(wt: _Weights, values: np.ndarray, order=None, start=None) -> np.ndarray:
-    ax = wt.ax
-    out = np.zeros(ax.shape)
-    if ax.dead or values.shape[0] == 0:
+class MappingPlan:
+    """Weights and the bin sort of one particle configuration, computed once per location
+    and reused: in a coupling step porosity, velocity and grad p interpolation and the force
+    deposition all use the same positions.  Results are bit-identical to the module
+    functions (which build a plan per call).
+
+        plan = MappingPlan(grid, pos, periodic)
+        res = plan.porosity(radius); uvw = plan.interpolate_faces(u, v, w)
+        su, sv, sw = plan.deposit_faces(force)
+
+    The plan holds references to nothing but its own arrays; build a new one when the
+    particles move.
+    """
+
+    def __init__(self, grid, pos, periodic=None):
+        self.spec = as_grid_spec(grid)
+        self.pos = _positions(pos)
+        self.periodic = _periodic(periodic)
+        self._w = {}
+        self._sort = {}
+
+    @property
+    def n(self) -> int:
+        return self.pos.shape[0]
+
+    def weights(self, location) -> _Weights:
+        _check_location(location)
+        wt = self._w.get(location)
+        if wt is None:
+            wt = _weights(self.spec, location, self.pos, self.periodic)
+            self._w[location] = wt
+        return wt
+
+    def _sorted(self, location):
+        srt = self._sort.get(location)
+        if srt is None:
+            wt = self.weights(location)
+            nbins = int(np.prod(wt.ax.nbin))
+            start = np.empty(nbins + 1, np.int64)
+            order = np.empty(self.n, np.int64)
+            _counting_sort(wt.key, nbins, start, order)
+            srt = (start, order)
+            self._sort[location] = srt
+        return srt
+
+    def deposit(self, values, location="ccc") -> np.ndarray:
+        """Node sums S[t] = sum_a w_at values[a] on ``location`` (see :func:`deposit`)."""
+        values = np.ascontiguousarray(values, dtype=np.float64).reshape(-1)
+        if values.shape[0] != self.n:
+            raise CaseError("coupling.values", f"{values.shape[0]} values for {self.n} particles")
+        wt = self.weights(location)
+        ax = wt.ax
+        out = np.zeros(ax.shape)
+        if ax.dead or self.n == 0:
+            return out
+        start, order = self._sorted(location)
+        _gather_kernel(np.array(ax.shape, np.int64), ax.n, ax.per, ax.bmin, ax.nbin, start, order,
+                       wt.a0, wt.a1, wt.w0, wt.w1, values, out)
         return out
-    if order is None:
-        nbins = int(np.prod(ax.nbin))
-        start = np.empty(nbins + 1, np.int64)
-        order = np.empty(values.shape[0], np.int64)
-        _counting_sort(wt.key, nbins, start, order)
-    _gather_kernel(np.array(ax.shape, np.int64), ax.n, ax.per, ax.bmin, ax.nbin, start, order,
-                   wt.a0, wt.a1, wt.w0, wt.w1, values, out)
-    return out
+
+    def interpolate(self, field, location="ccc") -> np.ndarray:
+        """sum_t w_at field[t] at each particle (see :func:`interpolate`)."""
+        wt = self.weights(location)
+        arr = _array(field, wt.ax.shape, location + " field")
+        out = np.zeros(self.n)
+        if wt.ax.dead or self.n == 0:
+            return out
+        _interp_kernel(wt.a0, wt.a1, wt.w0, wt.w1, arr, out)
+        return out
+
+    def porosity(self, radius, eps_min=0.3) -> "PorosityResult":
+        """See :func:`porosity`."""
+        spec, pos, per = self.spec, self.pos, self.periodic
+        r = np.broadcast_to(np.asarray(radius, dtype=np.float64), (self.n,))
+        vol = np.ascontiguousarray(4.0 / 3.0 * np.pi * r**3)
+        solid = self.deposit(vol, "ccc")
+        eps = 1.0 - solid / spec.cell_volume
+        k = int(np.argmin(eps))
+        where = tuple(int(v) for v in np.unravel_index(k, eps.shape))
+        outside = np.zeros(self.n, bool)
+        for a in range(3):
+            if not per[a]:
+                lo = spec.origin[a]
+                hi = lo + spec.shape[a] * spec.spacing[a]
+                outside |= (pos[:, a] < lo) | (pos[:, a] > hi)
+        return PorosityResult(
+            eps,
+            int(np.count_nonzero(eps < eps_min)),
+            int(np.count_nonzero(eps < 0.0)),
+            float(eps.flat[k]),
+            where,
+            float(solid.sum()),
+            int(np.count_nonzero(outside)),
+        )
+
+    def deposit_faces(self, values):
+        """See :func:`deposit_faces`."""
+        values = np.ascontiguousarray(values, dtype=np.float64)
+        if values.shape != self.pos.shape:
+            raise CaseError("coupling.values", f"values must have shape {self.pos.shape}, got {values.shape}")
+        return tuple(self.deposit(np.ascontiguousarray(values[:, c]), loc) for c, loc in enumerate(FACE_LOCATIONS))
+
+    def interpolate_faces(self, u, v, w) -> np.ndarray:
+        """See :func:`interpolate_faces`."""
+        out = np.empty((self.n, 3))
+        for c, (loc, f) in enumerate(zip(FACE_LOCATIONS, (u, v, w))):
+            out[:, c] = self.interpolate(f, loc)
+        return out
+
+    def gradient(self, p) -> np.ndarray:
+        """See :func:`gradient_at_particles`."""
+        return self.interpolate_faces(*face_gradient(self.spec, p, self.periodic))
 
 
 def _check_location(location):
@@ -441,14 +545,7 @@ def deposit(grid, pos, values, location="ccc", periodic=None) -> np.ndarray:
     """Spread per-particle scalars ``values (n,)`` to the nodes of ``location`` with the
     trilinear weights: S[t] = sum_a w_at values[a] (a sum, not a density).  Race-free and
     bit-identical for any thread count; sum(S) = sum(values) up to round-off."""
-    spec = as_grid_spec(grid)
-    _check_location(location)
-    pos = _positions(pos)
-    values = np.ascontiguousarray(values, dtype=np.float64).reshape(-1)
-    if values.shape[0] != pos.shape[0]:
-        raise CaseError("coupling.values", f"{values.shape[0]} values for {pos.shape[0]} particles")
-    wt = _weights(spec, location, pos, _periodic(periodic))
-    return _gather(wt, values)
+    return MappingPlan(grid, pos, periodic).deposit(values, location)
 
 
 class PorosityResult(NamedTuple):
@@ -473,31 +570,7 @@ def porosity(grid, pos, radius, periodic=None, eps_min=0.3) -> PorosityResult:
     cell are returned so that the caller can log where and how much.  Point-volume trilinear
     deposition: cells smaller than about 3 particle diameters give a noisy eps (and, if much
     smaller than a particle, eps < 0)."""
-    spec = as_grid_spec(grid)
-    pos = _positions(pos)
-    per = _periodic(periodic)
-    r = np.broadcast_to(np.asarray(radius, dtype=np.float64), (pos.shape[0],))
-    vol = np.ascontiguousarray(4.0 / 3.0 * np.pi * r**3)
-    wt = _weights(spec, "ccc", pos, per)
-    solid = _gather(wt, vol)
-    eps = 1.0 - solid / spec.cell_volume
-    k = int(np.argmin(eps))
-    where = tuple(int(v) for v in np.unravel_index(k, eps.shape))
-    outside = np.zeros(pos.shape[0], bool)
-    for a in range(3):
-        if not per[a]:
-            lo = spec.origin[a]
-            hi = lo + spec.shape[a] * spec.spacing[a]
-            outside |= (pos[:, a] < lo) | (pos[:, a] > hi)
-    return PorosityResult(
-        eps,
-        int(np.count_nonzero(eps < eps_min)),
-        int(np.count_nonzero(eps < 0.0)),
-        float(eps.flat[k]),
-        where,
-        float(solid.sum()),
-        int(np.count_nonzero(outside)),
-    )
+    return MappingPlan(grid, pos, periodic).porosity(radius, eps_min)
 
 
 def deposit_faces(grid, pos, values, periodic=None):
@@ -507,17 +580,7 @@ def deposit_faces(grid, pos, values, periodic=None):
     sums per face [same unit as values]; divide by the cell volume for a density.  The sum
     over faces equals the sum over particles component by component (up to round-off),
     except for a component normal to a one-cell wall axis (dropped, see module doc)."""
-    spec = as_grid_spec(grid)
-    pos = _positions(pos)
-    values = np.ascontiguousarray(values, dtype=np.float64)
-    if values.shape != pos.shape:
-        raise CaseError("coupling.values", f"values must have shape {pos.shape}, got {values.shape}")
-    per = _periodic(periodic)
-    out = []
-    for c, loc in enumerate(FACE_LOCATIONS):
-        wt = _weights(spec, loc, pos, per)
-        out.append(_gather(wt, np.ascontiguousarray(values[:, c])))
-    return tuple(out)
+    return MappingPlan(grid, pos, periodic).deposit_faces(values)
 
 
 def _array(field, shape, name):
@@ -530,16 +593,7 @@ def _array(field, shape, name):
 
 def interpolate(grid, field, pos, location="ccc", periodic=None) -> np.ndarray:
     """Value of a node field of ``location`` at the particles (n,): sum_t w_at field[t]."""
-    spec = as_grid_spec(grid)
-    _check_location(location)
-    pos = _positions(pos)
-    wt = _weights(spec, location, pos, _periodic(periodic))
-    arr = _array(field, wt.ax.shape, location + " field")
-    out = np.zeros(pos.shape[0])
-    if wt.ax.dead or pos.shape[0] == 0:
-        return out
-    _interp_kernel(wt.a0, wt.a1, wt.w0, wt.w1, arr, out)
-    return out
+    return MappingPlan(grid, pos, periodic).interpolate(field, location)
 
 
 def interpolate_centres(grid, field, pos, periodic=None) -> np.ndarray:
@@ -551,11 +605,7 @@ def interpolate_faces(grid, u, v, w, pos, periodic=None) -> np.ndarray:
     """Staggered velocity at the particles, (n, 3): u from the x-faces ``(nx+1, ny, nz)``, v
     from the y-faces, w from the z-faces, each with its own weights (the transpose of
     :func:`deposit_faces`)."""
-    pos = _positions(pos)
-    out = np.empty((pos.shape[0], 3))
-    for c, (loc, f) in enumerate(zip(FACE_LOCATIONS, (u, v, w))):
-        out[:, c] = interpolate(grid, f, pos, loc, periodic)
-    return out
+    return MappingPlan(grid, pos, periodic).interpolate_faces(u, v, w)
 
 
 def face_gradient(grid, p, periodic=None):
@@ -597,5 +647,4 @@ def gradient_at_particles(grid, p, pos, periodic=None) -> np.ndarray:
     like the velocity.  Exact for a pressure field linear in x, y, z (away from walls within
     half a cell, where the fold uses the first interior face's value - also exact for
     linear p)."""
-    gx, gy, gz = face_gradient(grid, p, periodic)
-    return interpolate_faces(grid, gx, gy, gz, pos, periodic)
+    return MappingPlan(grid, pos, periodic).gradient(p)

@@ -274,3 +274,23 @@ def test_thread_independence_bit_identical():
         numba.set_num_threads(prev)
     for a, b in zip(*results):
         assert np.array_equal(a, b)
+
+
+def test_plan_reuses_weights_and_matches_functions():
+    rng = np.random.default_rng(10)
+    pts = random_points(rng, 500)
+    per = (True, False, False)
+    f = rng.normal(size=(500, 3))
+    u = [rng.normal(size=M.node_shape(SPEC, loc)) for loc in ("fcc", "cfc", "ccf")]
+    p = rng.normal(size=SPEC.shape)
+    plan = M.MappingPlan(SPEC, pts, per)
+    a = plan.porosity(1e-3)
+    b = M.porosity(SPEC, pts, 1e-3, per)
+    assert np.array_equal(a.eps, b.eps) and a[1:] == b[1:]
+    for x, y in zip(plan.deposit_faces(f), M.deposit_faces(SPEC, pts, f, per)):
+        assert np.array_equal(x, y)
+    assert np.array_equal(plan.interpolate_faces(*u), M.interpolate_faces(SPEC, *u, pts, per))
+    assert np.array_equal(plan.gradient(p), M.gradient_at_particles(SPEC, p, pts, per))
+    w_before = plan.weights("fcc")
+    plan.deposit_faces(f)
+    assert plan.weights("fcc") is w_before  # cached, not recomputed
