@@ -81,7 +81,8 @@ def prepare_out_dir(out: Path, overwrite: bool) -> None:
         if not (out / RUN_MARKER).exists():
             raise CaseError("--out", f"{out} is not empty and holds no cfddem run ({RUN_MARKER} missing): "
                                      "refusing to delete files the run did not write")
-        for name in ("results.h5", "run.log", "case.resolved.toml", RUN_MARKER, "vtk", "report", "checkpoints"):
+        for name in ("results.h5", "results_snapshots", "run.log", "case.resolved.toml", RUN_MARKER, "vtk", "report",
+                     "checkpoints"):
             p = out / name
             if p.is_dir():
                 shutil.rmtree(p)
@@ -230,7 +231,7 @@ class Simulation:
 
     # ------------------------------------------------------------------------------- the run
     def _open_outputs(self):
-        from .io.checkpoint import latest_checkpoint, truncate_results
+        from .io.checkpoint import latest_checkpoint
         from .io.log import setup_run_logger
         from .io.results import ResultsFile
         from .io.vtk import ParaViewOutput
@@ -251,9 +252,9 @@ class Simulation:
         if self.resume:
             self.set_state(state)
             t = self.system.time
-            truncate_results(self.out / "results.h5", t)
             self.log.info("resuming from %s at t = %.6g s, step %d", ckpt_path.name, t, self.system.step_count)
             res = ResultsFile(self.out / "results.h5", mode="a")
+            res.truncate_after(t)
         else:
             check_disk_space(case, self.out)
             (self.out / "case.resolved.toml").write_text(case.to_toml())

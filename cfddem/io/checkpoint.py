@@ -116,23 +116,3 @@ def latest_checkpoint(folder: str | Path) -> tuple[Path, dict] | None:
             continue
     return None
 
-
-def truncate_results(path: str | Path, time: float, eps: float = 1e-12) -> None:
-    """Prepare ``results.h5`` for a resumed run: drop series rows and snapshots written after
-    ``time`` (the checkpoint's), so the resumed run appends exactly what an uninterrupted run
-    would have written.  Measurements are rewritten by the run itself."""
-    with h5py.File(path, "a") as h:
-        if "series" in h and "time" in h["series"]:
-            t = h["series"]["time"][()]
-            keep = int(np.searchsorted(t, time + eps, side="right"))
-            for name in list(h["series"]):
-                ds = h["series"][name]
-                if ds.shape[0] > keep:
-                    ds.resize((keep,))
-        if "snapshots" in h:
-            for name in list(h["snapshots"]):
-                if float(h["snapshots"][name].attrs.get("time", -1.0)) > time + eps:
-                    del h["snapshots"][name]
-        if "measurements" in h:
-            for name in list(h["measurements"]):
-                del h["measurements"][name]

@@ -11,14 +11,17 @@ Layout (see ``docs/outputs.md`` for units and the full list)::
     /measurements/<group>/<name>      arrays (attrs on the group)
     /measurements/<name>              scalars or arrays written without a group
 
-The file is flushed at every output interval (:meth:`ResultsFile.flush`) so that a run
-killed between two outputs leaves a readable file with everything up to the last flush.
+The file is rewritten atomically at every output interval (:meth:`ResultsFile.flush`), and
+snapshots live in ``results_snapshots/NNNNNN.h5`` (each written atomically), linked into
+``/snapshots`` by HDF5 external links: a run killed at any moment, even by SIGKILL, leaves a
+readable ``results.h5`` with everything up to the last flush.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 from typing import Any
 
@@ -58,10 +61,18 @@ def _attr_value(v: Any):
 
 
 class ResultsFile:
-    """Writer for ``results.h5``.
+    """Writer for ``results.h5``, crash-safe.
 
-    ``mode="w"`` creates (truncates) the file, ``mode="a"`` appends to an existing one
-    (a restarted run): series rows, snapshots and measurements continue where they were.
+    Everything small (configuration, metadata, time series, measurements) is kept in memory
+    and ``results.h5`` is rewritten *atomically* at every :meth:`flush` (temporary file,
+    fsync, ``os.replace``): a process killed at any moment (SIGKILL included) leaves the
+    previous complete file, with every record flushed before the kill.  Particle snapshots
+    are written once each, atomically too, to ``<stem>_snapshots/NNNNNN.h5`` beside it, and
+    appear inside ``results.h5`` as ``/snapshots/NNNNNN`` through HDF5 external links (h5py
+    follows them transparently; keep the folder beside the file when moving a run).
+
+    ``mode="w"`` starts a new file, ``mode="a"`` loads an existing one (a restarted run):
+    series rows, snapshots and measurements continue where they were.
     Use as a context manager or call :meth:`close`.
     """
 
@@ -69,11 +80,40 @@ class ResultsFile:
         if mode not in ("w", "a"):
             raise ValueError(f"mode must be 'w' or 'a', not {mode!r}")
         self.path = Path(path)
-        self._f = h5py.File(self.path, mode)
-        self._series = self._f.require_group("series")
-        self._f.require_group("snapshots")
-        self._f.require_group("measurements")
-        self._rows = int(self._series["time"].shape[0]) if "time" in self._series else 0
+        self.snap_dir = self.path.parent / f"{self.path.stem}_snapshots"
+        self._config: dict[str, str] = {}
+        self._meta: dict[str, Any] = {}
+        self._series: dict[str, list[float]] = {}
+        self._rows = 0
+        self._meas = {}  # nested dict of arrays; attrs under "@attrs"
+        self._snaps: list[tuple[str, float, int]] = []
+        self._closed = False
+        if mode == "a" and self.path.exists():
+            self._load()
+        elif mode == "w" and self.snap_dir.exists():
+            for f in self.snap_dir.glob("*.h5"):
+                f.unlink()
+        self._dirty = True
+        self.flush()
+
+    def _load(self) -> None:
+        with h5py.File(self.path, "r") as f:
+            if "config" in f:
+                self._config = {k: ds.asstr()[()] for k, ds in f["config"].items()}
+            if "metadata" in f:
+                self._meta = {k: _decode(v) for k, v in f["metadata"].attrs.items()}
+            if "series" in f:
+                self._series = {k: [float(x) for x in ds[()]] for k, ds in f["series"].items()}
+                self._rows = len(self._series.get("time", []))
+            if "measurements" in f:
+                self._meas = _read_tree(f["measurements"], True)
+            if "snapshots" in f:
+                for name in sorted(f["snapshots"]):
+                    link = f["snapshots"].get(name, getlink=True)
+                    if not (self.snap_dir / f"{name}.h5").exists() and isinstance(link, h5py.ExternalLink):
+                        continue  # a snapshot file lost: skip it rather than fail
+                    g = f["snapshots"][name]
+                    self._snaps.append((name, float(g.attrs["time"]), int(g.attrs["step"])))
 
     # ------------------------------------------------------------------ context manager
     def __enter__(self) -> "ResultsFile":
@@ -84,27 +124,45 @@ class ResultsFile:
 
     @property
     def closed(self) -> bool:
-        return not bool(self._f.id.valid)
+        return self._closed
 
     def flush(self) -> None:
-        """Push everything written so far to disk (call at every output interval)."""
-        self._f.flush()
+        """Rewrite ``results.h5`` atomically with everything recorded so far (call at every
+        output interval; a no-op when nothing changed)."""
+        if not self._dirty:
+            return
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = self.path.with_name(f".{self.path.name}.tmp")
+        with h5py.File(tmp, "w") as f:
+            g = f.create_group("config")
+            for name, text in self._config.items():
+                g.create_dataset(name, data=text, dtype=_STR)
+            m = f.create_group("metadata")
+            for k, v in self._meta.items():
+                m.attrs[k] = _attr_value(v)
+            sg = f.create_group("series")
+            for name, vals in self._series.items():
+                sg.create_dataset(name, data=np.asarray(vals, dtype="f8"), maxshape=(None,),
+                                  chunks=(_SERIES_CHUNK,) if len(vals) else None)
+            self._write_tree(f.create_group("measurements"), self._meas)
+            sn = f.create_group("snapshots")
+            for name, _, _ in self._snaps:
+                sn[name] = h5py.ExternalLink(f"{self.snap_dir.name}/{name}.h5", "/")
+        _fsync(tmp)
+        os.replace(tmp, self.path)
+        self._dirty = False
 
     def close(self) -> None:
-        if not self.closed:
-            self._f.flush()
-            self._f.close()
+        if not self._closed:
+            self.flush()
+            self._closed = True
 
     # ------------------------------------------------------------------ configuration
     def write_config(self, toml_text: str, resolved: dict) -> None:
         """Store the case file text and the resolved configuration (as JSON)."""
-        g = self._f.require_group("config")
-        for name, text in (("case.toml", toml_text),
-                           ("resolved.json", json.dumps(resolved, default=_jsonable, indent=1,
-                                                        sort_keys=True))):
-            if name in g:
-                del g[name]
-            g.create_dataset(name, data=text, dtype=_STR)
+        self._config["case.toml"] = toml_text
+        self._config["resolved.json"] = json.dumps(resolved, default=_jsonable, indent=1, sort_keys=True)
+        self._dirty = True
 
     def write_metadata(self, **attrs) -> None:
         """Set attributes of ``/metadata`` (version, start time, threads, ...).
@@ -112,9 +170,8 @@ class ResultsFile:
         Values that HDF5 cannot hold directly (dicts, mixed lists) are stored as JSON
         strings; ``None`` becomes ``''``.
         """
-        g = self._f.require_group("metadata")
-        for k, v in attrs.items():
-            g.attrs[k] = _attr_value(v)
+        self._meta.update(attrs)
+        self._dirty = True
 
     # ------------------------------------------------------------------ time series
     def append_series(self, time: float, **scalars: float) -> None:
@@ -124,47 +181,65 @@ class ResultsFile:
         NaN, and a series first named at row k is created with k leading NaNs.
         """
         n = self._rows
-        names = set(scalars) | {"time"}
         values = dict(scalars, time=time)
-        for name in names:
+        for name in values:
             if name not in self._series:
-                ds = self._series.create_dataset(
-                    name, shape=(n,), maxshape=(None,), dtype="f8",
-                    chunks=(_SERIES_CHUNK,), fillvalue=np.nan)
-                if n:
-                    ds[:] = np.nan
-        for name, ds in self._series.items():
-            ds.resize((n + 1,))
+                self._series[name] = [math.nan] * n
+        for name, col in self._series.items():
             v = values.get(name, math.nan)
-            ds[n] = np.nan if v is None else float(v)
+            col.append(math.nan if v is None else float(v))
         self._rows = n + 1
+        self._dirty = True
 
     @property
     def n_series_rows(self) -> int:
         return self._rows
 
+    def truncate_after(self, time: float, eps: float = 1e-12) -> None:
+        """Drop series rows and snapshots after ``time`` and all measurements (a run resumed
+        from a checkpoint at ``time`` writes them again)."""
+        t = np.asarray(self._series.get("time", []), float)
+        keep = int(np.searchsorted(t, time + eps, side="right"))
+        for name in self._series:
+            del self._series[name][keep:]
+        self._rows = keep
+        kept = []
+        for name, ts, step in self._snaps:
+            if ts > time + eps:
+                (self.snap_dir / f"{name}.h5").unlink(missing_ok=True)
+            else:
+                kept.append((name, ts, step))
+        self._snaps = kept
+        self._meas = {}
+        self._dirty = True
+
     # ------------------------------------------------------------------ snapshots
     def write_snapshot(self, time: float, step: int, **arrays) -> str:
-        """Write ``/snapshots/<NNNNNN>`` (next free index) with attrs time and step and one
-        dataset per array (pos, vel, omega, radius, ids, ...); returns the group name.
+        """Write snapshot ``NNNNNN`` (next free index) with attrs time and step and one
+        dataset per array (pos, vel, omega, radius, ids, ...); returns its name.  The
+        snapshot file is complete on disk when this returns; ``results.h5`` links it at the
+        next :meth:`flush`.
 
         Arrays with more than 4096 elements are gzip-compressed (level 4) with shuffle.
         """
-        snaps = self._f["snapshots"]
-        k = len(snaps)
+        k = int(self._snaps[-1][0]) + 1 if self._snaps else 0
         name = f"{k:06d}"
-        while name in snaps:  # an appended file with a gap: never overwrite
-            k += 1
-            name = f"{k:06d}"
-        g = snaps.create_group(name)
-        g.attrs["time"] = float(time)
-        g.attrs["step"] = int(step)
-        for key, arr in arrays.items():
-            a = np.asarray(arr)
-            if a.size > 4096:
-                g.create_dataset(key, data=a, compression="gzip", compression_opts=4, shuffle=True)
-            else:
-                g.create_dataset(key, data=a)
+        self.snap_dir.mkdir(parents=True, exist_ok=True)
+        final = self.snap_dir / f"{name}.h5"
+        tmp = self.snap_dir / f".{name}.h5.tmp"
+        with h5py.File(tmp, "w") as g:
+            g.attrs["time"] = float(time)
+            g.attrs["step"] = int(step)
+            for key, arr in arrays.items():
+                a = np.asarray(arr)
+                if a.size > 4096:
+                    g.create_dataset(key, data=a, compression="gzip", compression_opts=4, shuffle=True)
+                else:
+                    g.create_dataset(key, data=a)
+        _fsync(tmp)
+        os.replace(tmp, final)
+        self._snaps.append((name, float(time), int(step)))
+        self._dirty = True
         return name
 
     # ------------------------------------------------------------------ measurements
@@ -180,32 +255,55 @@ class ResultsFile:
         Existing datasets of the same name are replaced (measurements are rewritten with
         the longer time average at every output).
         """
-        root = self._f["measurements"]
         attrs = attrs or {}
         if not isinstance(arrays, dict):
             if not group:
                 raise ValueError("a single measurement needs a name")
-            if group in root:
-                del root[group]
-            ds = root.create_dataset(group, data=np.asarray(arrays))
-            for k, v in attrs.items():
-                ds.attrs[k] = _attr_value(v)
+            self._meas[group] = np.asarray(arrays)
+            if attrs:
+                self._meas[f"@attrs:{group}"] = dict(attrs)
+            self._dirty = True
             return
-        g = root.require_group(group) if group else root
-        self._write_tree(g, arrays)
-        for k, v in attrs.items():
-            g.attrs[k] = _attr_value(v)
+        tree = self._meas
+        if group:
+            for part in group.split("/"):
+                tree = tree.setdefault(part, {})
+        _merge(tree, arrays)
+        if attrs:
+            tree.setdefault("@attrs", {}).update(attrs)
+        self._dirty = True
 
     def _write_tree(self, g: h5py.Group, tree: dict) -> None:
         for k, v in tree.items():
-            if k in g:
-                del g[k]
-            if isinstance(v, dict):
+            if k == "@attrs":
+                for a, av in v.items():
+                    g.attrs[a] = _attr_value(av)
+            elif k.startswith("@attrs:"):
+                continue
+            elif isinstance(v, dict):
                 self._write_tree(g.create_group(k), v)
             elif isinstance(v, str):
                 g.create_dataset(k, data=v, dtype=_STR)
             else:
-                g.create_dataset(k, data=np.asarray(v))
+                ds = g.create_dataset(k, data=np.asarray(v))
+                for a, av in tree.get(f"@attrs:{k}", {}).items():
+                    ds.attrs[a] = _attr_value(av)
+
+
+def _merge(dst: dict, src: dict) -> None:
+    for k, v in src.items():
+        if isinstance(v, dict):
+            _merge(dst.setdefault(k, {}) if isinstance(dst.get(k), dict) else dst.setdefault(k, {}), v)
+        else:
+            dst[k] = v.copy() if isinstance(v, np.ndarray) else v
+
+
+def _fsync(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
 # ---------------------------------------------------------------------- readers
