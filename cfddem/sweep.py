@@ -216,8 +216,13 @@ _UNSAFE = re.compile(r"[^A-Za-z0-9._=+-]+")
 def sanitise(text: str) -> str:
     """Keep letters, digits and ``. _ = + -``; every other run of characters becomes ``_``;
     no leading dot or dash (hidden files, options)."""
-    s = _UNSAFE.sub("_", text).lstrip("._-").rstrip("_")
+    s = _clean(text).lstrip("._-")
     return s or "_"
+
+
+def _clean(text: str) -> str:
+    """Unsafe character runs -> ``_`` (a leading ``-`` kept: ``-0.2`` stays negative)."""
+    return _UNSAFE.sub("_", text).strip("_") or "_"
 
 
 def _digest(values: dict) -> str:
@@ -229,7 +234,7 @@ def variant_name(values: dict[str, Any]) -> str:
     names over :data:`MAX_NAME` characters are cut and given an 8-character hash)."""
     if not values:
         return "base"
-    name = "__".join(f"{sanitise(k)}={sanitise(format_value(v))}" for k, v in values.items())
+    name = sanitise("__".join(f"{_clean(k)}={_clean(format_value(v))}" for k, v in values.items()))
     if len(name) > MAX_NAME:
         name = name[:MAX_NAME - 10] + "__" + _digest(values)
     return name
@@ -653,12 +658,33 @@ def run_sweep(case: str | Path, variants: list[dict[str, Any]], out: str | Path 
     return rows
 
 
-def _run_on_dask(case_arg: str, todo: list[tuple[int, dict]], rows: list[dict], *, scheduler, workers, threads,
-                 connect_timeout, say) -> None:
+def start_local_cluster(n_workers: int, threads: int):
+    """An embedded Dask cluster on 127.0.0.1: ``n_workers`` worker processes of one Dask thread
+    each, ``NUMBA_NUM_THREADS=threads`` (and ``OMP_NUM_THREADS=1``) in their environment, no
+    dashboard, every port chosen free.  Worker processes are spawned: a script calling this (or
+    :func:`run_sweep`) needs the ``if __name__ == "__main__":`` guard.  Returns ``(cluster, client)``; close both."""
     _import_distributed()
     import logging
 
-    from distributed import Client, LocalCluster, as_completed
+    from distributed import Client, LocalCluster
+
+    cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                           dashboard_address=None, silence_logs=logging.ERROR,
+                           # no dashboard; its health/metrics HTTP server on a free port, not 8787
+                           scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
+                           env={"NUMBA_NUM_THREADS": str(threads), "OMP_NUM_THREADS": "1"})
+    try:
+        client = Client(cluster)
+    except BaseException:
+        cluster.close()
+        raise
+    return cluster, client
+
+
+def _run_on_dask(case_arg: str, todo: list[tuple[int, dict]], rows: list[dict], *, scheduler, workers, threads,
+                 connect_timeout, say) -> None:
+    _import_distributed()
+    from distributed import Client, as_completed
 
     cluster = client = None
     try:
@@ -676,10 +702,7 @@ def _run_on_dask(case_arg: str, todo: list[tuple[int, dict]], rows: list[dict], 
             task_t = threads or max(1, cores // nw)
             if nw * task_t > cores:
                 say(f"note: {nw} workers x {task_t} threads exceeds the {cores} cores of this machine")
-            cluster = LocalCluster(n_workers=nw, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                   dashboard_address=None, silence_logs=logging.ERROR,
-                                   env={"NUMBA_NUM_THREADS": str(task_t), "OMP_NUM_THREADS": "1"})
-            client = Client(cluster)
+            cluster, client = start_local_cluster(nw, task_t)
             say(f"local Dask cluster: {nw} worker process(es) x 1 thread, {task_t} numba thread(s) each")
         futures = {}
         for i, overrides in todo:

@@ -81,6 +81,8 @@ def test_variant_names_and_sanitising():
     assert S.variant_name({"frame.rpm": 16.0, "gas.enabled": True}) == "frame.rpm=16.0__gas.enabled=true"
     assert S.variant_name({"frame.axis_point": [0.04, 0, -0.035]}) == "frame.axis_point=0.04_0_-0.035"
     assert S.variant_name({}) == "base"
+    assert S.variant_name({"contact.particle_wall.mu": -0.2}) == "contact.particle_wall.mu=-0.2"
+    assert S.variant_name({"case.name": "../../etc"}) == "case.name=.._.._etc"
     assert S.sanitise("a/b c:*?d") == "a_b_c_d"
     assert S.sanitise("../x") == "x"
     assert S.sanitise("-rf") == "rf"
