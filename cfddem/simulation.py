@@ -309,12 +309,16 @@ class Simulation:
         status, message = "done", ""
         old_handlers = self._install_signals()
 
+        last = {"series": None, "vtk": None}  # step of the last row / frame
+
         def outputs(final=False):
+            # final: make sure the end state is in the series and the VTU frames
             t0 = _time.perf_counter()
             t = sys_.time
-            if sch["series"].due(t, dt) or final:
+            if sch["series"].due(t, dt) or (final and last["series"] != sys_.step_count):
                 res.append_series(**self._series_row())
                 sch["series"].advance(t, dt)
+                last["series"] = sys_.step_count
             if sch["snapshot"].due(t, dt):
                 res.write_snapshot(t, sys_.step_count, pos=sys_.pos, vel=sys_.vel, omega=sys_.omega,
                                    radius=sys_.radius, ids=sys_.ids)
@@ -322,10 +326,11 @@ class Simulation:
                 if self.measure is not None and self.measure.n_samples:
                     # the averages so far, so that a killed run keeps them
                     res.write_measurements(self.measure.group, self.measure.results(), self.measure.attrs())
-            if pv is not None and (sch["vtk"].due(t, dt) or final):
+            if pv is not None and (sch["vtk"].due(t, dt) or (final and last["vtk"] != sys_.step_count)):
                 pv.write(t, sys_.pos, sys_.radius, vel=sys_.vel, omega=sys_.omega, ids=sys_.ids,
                          gas=self.gas.vtk_fields() if self.gas is not None else None)
                 sch["vtk"].advance(t, dt)
+                last["vtk"] = sys_.step_count
             res.flush()
             self.timings["output"] += _time.perf_counter() - t0
 
@@ -372,7 +377,8 @@ class Simulation:
                                                      f"(continue with --resume)"
                     break
                 if max_steps is not None and sys_.step_count >= max_steps:
-                    status, message = "stopped", f"step limit reached ({max_steps} steps)"
+                    self.write_checkpoint()
+                    status, message = "stopped", f"step limit reached ({max_steps} steps); checkpoint written"
                     break
                 if wall_limit is not None and _time.perf_counter() - t_wall0 >= wall_limit:
                     self.write_checkpoint()
