@@ -1,0 +1,324 @@
+"""Boundary conditions of the gas box, applied by filling halo (ghost) cells.
+
+One condition per side of the box: ``"x-", "x+", "y-", "y+", "z-", "z+"``.  Filling the
+halos makes every interior stencil branch-free.  With ``g`` the halo width, ``n`` the cell
+count along the side's normal direction and indices counted in the array (interior index
+``i`` is array index ``i+g``), the lower-side rules are (upper side mirrored):
+
+normal component (the face field whose faces are parallel to the side, boundary face ``g``)
+    * prescribed (``NoSlip``, ``FreeSlip``: u_b = 0; ``Velocity``/``Inlet``/``LidCrossWind``:
+      u_b given): ``a[g] = u_b``, ``a[g-m] = 2 u_b - a[g+m]`` (odd reflection; exact for a
+      field linear in the normal direction);
+    * ``PressureOutlet``: the boundary face is an unknown; ``a[g-m] = a[g]`` (zero gradient);
+    * ``Periodic``: face ``n`` is face ``0``; ``a[g+n] = a[g]``, ``a[g-m] = a[g+n-m]``.
+
+tangential components (centred in the normal direction; the boundary lies half a cell
+outside the first interior point)
+    * no-slip / prescribed: ``a[g-m] = 2 u_b - a[g+m-1]`` (the wall value is the mean of
+      the first interior and ghost values; second-order, exact for linear fields);
+    * free slip: ``a[g-m] = a[g+m-1]`` (zero normal gradient, zero shear stress);
+    * outlet: ``a[g-m] = a[g]`` (zero gradient);
+    * periodic: ``a[g-m] = a[g+n-m]``.
+
+cell-centred pressure: zero normal gradient at prescribed-velocity sides (the projection
+never corrects those faces), ``p_ghost = 2 p_out - p_interior`` at an outlet (Dirichlet
+value ``p_out`` on the boundary face), wrap at periodic sides.  Porosity: zero gradient
+(wrap at periodic sides).
+
+Halos are filled direction by direction (x, then y, then z) over the full extent of the
+other directions, so edges and corners take consistent values.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from cfddem.errors import CaseError
+from cfddem.gas.grid import StaggeredGrid
+
+SIDES = ("x-", "x+", "y-", "y+", "z-", "z+")
+_COMPONENT_LOC = ("fcc", "cfc", "ccf")
+
+
+class BC:
+    """Base class of a side's boundary condition."""
+
+    kind = "base"
+    prescribes_velocity = True
+
+    def velocity(self, side: str, x, y, z):
+        """Prescribed velocity (u, v, w) at the boundary points (arrays broadcast together)."""
+        zero = np.zeros(np.broadcast(x, y, z).shape)
+        return zero, zero.copy(), zero.copy()
+
+
+@dataclass(frozen=True)
+class NoSlip(BC):
+    """Wall at rest: u = 0 on the wall (normal and tangential)."""
+
+    kind = "noslip"
+
+
+@dataclass(frozen=True)
+class FreeSlip(BC):
+    """Impermeable wall without shear stress: u.n = 0, d(u_t)/dn = 0."""
+
+    kind = "freeslip"
+
+
+@dataclass(frozen=True)
+class Velocity(BC):
+    """Prescribed velocity: a constant vector or a function ``f(x, y, z) -> (u, v, w)``.
+
+    Also a moving wall (tangential velocity only) or an open boundary with given inflow.
+    """
+
+    value: tuple | Callable = (0.0, 0.0, 0.0)
+    kind = "velocity"
+
+    def velocity(self, side, x, y, z):
+        shape = np.broadcast(x, y, z).shape
+        if callable(self.value):
+            out = self.value(x, y, z)
+        else:
+            out = self.value
+        return tuple(np.broadcast_to(np.asarray(c, dtype=float), shape).copy() for c in out)
+
+
+@dataclass(frozen=True)
+class Inlet(BC):
+    """Velocity inlet: inflow speed (m/s, into the box, along the side's normal), uniform or
+    a profile ``f(x, y, z) -> speed``; optional tangential velocity vector ``tangential``."""
+
+    speed: float | Callable = 0.0
+    tangential: tuple = (0.0, 0.0, 0.0)
+    kind = "inlet"
+
+    def velocity(self, side, x, y, z):
+        shape = np.broadcast(x, y, z).shape
+        d = "xyz".index(side[0])
+        sign = 1.0 if side[1] == "-" else -1.0
+        s = self.speed(x, y, z) if callable(self.speed) else self.speed
+        out = [np.broadcast_to(np.asarray(t, dtype=float), shape).copy() for t in self.tangential]
+        out[d] = sign * np.broadcast_to(np.asarray(s, dtype=float), shape).copy()
+        return tuple(out)
+
+
+@dataclass(frozen=True)
+class LidCrossWind(BC):
+    """Open top of a rotating chute: the lab-frame air at rest seen from the rotating frame,
+    ``u = -Omega x (r - r_axis)`` (physics.md section 2)."""
+
+    omega: tuple = (0.0, 0.0, 0.0)
+    axis_point: tuple = (0.0, 0.0, 0.0)
+    kind = "velocity"
+
+    def velocity(self, side, x, y, z):
+        shape = np.broadcast(x, y, z).shape
+        r = [np.broadcast_to(np.asarray(c, dtype=float), shape) - a for c, a in zip((x, y, z), self.axis_point)]
+        ox, oy, oz = (float(o) for o in self.omega)
+        # Omega x r = (oy rz - oz ry, oz rx - ox rz, ox ry - oy rx)
+        return (-(oy * r[2] - oz * r[1]), -(oz * r[0] - ox * r[2]), -(ox * r[1] - oy * r[0]))
+
+
+@dataclass(frozen=True)
+class PressureOutlet(BC):
+    """Constant-pressure outlet: p = p_out on the boundary face (a number or a function
+    ``f(x, y, z)``, e.g. hydrostatic), zero-gradient velocity."""
+
+    p: float | Callable = 0.0
+    kind = "outlet"
+    prescribes_velocity = False
+
+
+@dataclass(frozen=True)
+class Periodic(BC):
+    """Periodic pair: both sides of the direction must be periodic."""
+
+    kind = "periodic"
+    prescribes_velocity = False
+
+
+def _sl(d: int, idx) -> tuple:
+    s = [slice(None)] * 3
+    s[d] = idx
+    return tuple(s)
+
+
+@dataclass
+class BoundarySet:
+    """The six boundary conditions of a grid, with their boundary values precomputed.
+
+    Attributes used by the solver: ``kinds[side]``, ``periodic[d]``, ``face_range[d]``
+    (first and one-past-last interior face index of component d that the momentum equation
+    updates), ``pressure_bc[side]`` in {"neumann", "dirichlet", "periodic"}.
+    """
+
+    grid: StaggeredGrid
+    bcs: dict
+    kinds: dict = field(init=False)
+    periodic: tuple = field(init=False)
+
+    def __post_init__(self):
+        g = self.grid
+        missing = [s for s in SIDES if s not in self.bcs]
+        extra = [s for s in self.bcs if s not in SIDES]
+        if missing or extra:
+            raise CaseError("gas.bcs", f"need one condition for each of {SIDES}; missing {missing}, unknown {extra}")
+        for s, bc in self.bcs.items():
+            if not isinstance(bc, BC):
+                raise CaseError(f"gas.bcs.{s}", f"not a boundary condition: {bc!r}")
+        self.kinds = {s: self.bcs[s].kind for s in SIDES}
+        per = []
+        for d in range(3):
+            lo, hi = self.kinds[SIDES[2 * d]], self.kinds[SIDES[2 * d + 1]]
+            if (lo == "periodic") != (hi == "periodic"):
+                raise CaseError(f"gas.bcs.{SIDES[2 * d]}", "periodic must be set on both sides of a direction")
+            per.append(lo == "periodic")
+        self.periodic = tuple(per)
+        self.face_range = []
+        for d in range(3):
+            n = g.shape[d]
+            lo_side, hi_side = SIDES[2 * d], SIDES[2 * d + 1]
+            if self.periodic[d]:
+                self.face_range.append((0, n))
+            else:
+                lo = 0 if self.kinds[lo_side] == "outlet" else 1
+                hi = n + 1 if self.kinds[hi_side] == "outlet" else n
+                self.face_range.append((lo, hi))
+        self.pressure_bc = {}
+        for s in SIDES:
+            k = self.kinds[s]
+            self.pressure_bc[s] = "periodic" if k == "periodic" else ("dirichlet" if k == "outlet" else "neumann")
+        self._precompute()
+
+    @property
+    def has_dirichlet_pressure(self) -> bool:
+        return any(v == "dirichlet" for v in self.pressure_bc.values())
+
+    def _boundary_points(self, side: str, loc: str):
+        """Coordinates (broadcastable, axis d of size 1) on the side's plane for ``loc``."""
+        g = self.grid
+        d = "xyz".index(side[0])
+        xb = g.origin[d] + (0.0 if side[1] == "-" else g.lengths[d])
+        cs = []
+        for e in range(3):
+            if e == d:
+                cs.append(np.full((1, 1, 1), xb))
+            else:
+                shape = [1, 1, 1]
+                c = g.coords(loc, e, with_halo=True)
+                shape[e] = c.size
+                cs.append(c.reshape(shape))
+        return cs
+
+    def _precompute(self):
+        self._ub = {}
+        self._pout = {}
+        for s in SIDES:
+            bc = self.bcs[s]
+            d = "xyz".index(s[0])
+            if bc.prescribes_velocity:
+                for c in range(3):
+                    x, y, z = self._boundary_points(s, _COMPONENT_LOC[c])
+                    vals = bc.velocity(s, x, y, z)[c]
+                    shape = list(self.grid.array_shape(_COMPONENT_LOC[c]))
+                    shape[d] = 1
+                    self._ub[(s, c)] = np.ascontiguousarray(np.broadcast_to(vals, shape))
+            if bc.kind == "outlet":
+                x, y, z = self._boundary_points(s, "ccc")
+                pv = bc.p(x, y, z) if callable(bc.p) else bc.p
+                shape = list(self.grid.array_shape("ccc"))
+                shape[d] = 1
+                self._pout[s] = np.ascontiguousarray(np.broadcast_to(np.asarray(pv, dtype=float), shape))
+
+    def boundary_velocity(self, side: str, comp: int) -> np.ndarray | None:
+        """Prescribed value of component ``comp`` on ``side`` (None where not prescribed)."""
+        return self._ub.get((side, comp))
+
+    # --- halo filling -------------------------------------------------------------------
+    def fill_velocity(self, u: np.ndarray, v: np.ndarray, w: np.ndarray) -> None:
+        """Fill halos (and prescribed boundary faces) of the three velocity arrays in place."""
+        comps = (u, v, w)
+        for d in range(3):
+            for c in range(3):
+                self._fill_component(comps[c], c, d)
+
+    def _fill_component(self, a: np.ndarray, c: int, d: int) -> None:
+        g = self.grid.halo
+        n = self.grid.shape[d]
+        lo, hi = SIDES[2 * d], SIDES[2 * d + 1]
+        if self.periodic[d]:
+            if c == d:
+                a[_sl(d, g + n)] = a[_sl(d, g)]
+                for m in range(1, g + 1):
+                    a[_sl(d, g - m)] = a[_sl(d, g + n - m)]
+                    a[_sl(d, g + n + m)] = a[_sl(d, g + m)]
+            else:
+                for m in range(1, g + 1):
+                    a[_sl(d, g - m)] = a[_sl(d, g + n - m)]
+                    a[_sl(d, g + n - 1 + m)] = a[_sl(d, g - 1 + m)]
+            return
+        for side, lower in ((lo, True), (hi, False)):
+            kind = self.kinds[side]
+            ub = self._ub.get((side, c))
+            if ub is not None and kind == "freeslip" and c != d:
+                ub = None
+            if c == d:  # normal component, boundary face at g (lower) or g+n (upper)
+                b = g if lower else g + n
+                sgn = -1 if lower else 1
+                if kind == "outlet":
+                    for m in range(1, g + 1):
+                        a[_sl(d, b + sgn * m)] = a[_sl(d, b)]
+                else:
+                    a[_sl(d, slice(b, b + 1))] = ub
+                    for m in range(1, g + 1):
+                        a[_sl(d, slice(b + sgn * m, b + sgn * m + 1))] = 2.0 * ub - a[_sl(d, slice(b - sgn * m, b - sgn * m + 1))]
+            else:  # tangential component, first interior point half a cell from the side
+                for m in range(1, g + 1):
+                    if lower:
+                        gi, mi, fi = g - m, g + m - 1, g
+                    else:
+                        gi, mi, fi = g + n - 1 + m, g + n - m, g + n - 1
+                    if kind == "outlet":
+                        a[_sl(d, gi)] = a[_sl(d, fi)]
+                    elif kind == "freeslip":
+                        a[_sl(d, gi)] = a[_sl(d, mi)]
+                    else:
+                        a[_sl(d, slice(gi, gi + 1))] = 2.0 * ub - a[_sl(d, slice(mi, mi + 1))]
+
+    def fill_pressure(self, p: np.ndarray, homogeneous: bool = False) -> None:
+        """Fill the halos of a centre pressure array.  ``homogeneous``: outlet value 0
+        (for the pressure increment of the projection)."""
+        g = self.grid.halo
+        for d in range(3):
+            n = self.grid.shape[d]
+            if self.periodic[d]:
+                for m in range(1, g + 1):
+                    p[_sl(d, g - m)] = p[_sl(d, g + n - m)]
+                    p[_sl(d, g + n - 1 + m)] = p[_sl(d, g - 1 + m)]
+                continue
+            for side, lower in ((SIDES[2 * d], True), (SIDES[2 * d + 1], False)):
+                for m in range(1, g + 1):
+                    gi, mi = (g - m, g + m - 1) if lower else (g + n - 1 + m, g + n - m)
+                    if self.kinds[side] == "outlet":
+                        pb = 0.0 if homogeneous else self._pout[side]
+                        p[_sl(d, slice(gi, gi + 1))] = 2.0 * pb - p[_sl(d, slice(mi, mi + 1))]
+                    else:
+                        p[_sl(d, gi)] = p[_sl(d, mi)]
+
+    def fill_scalar(self, a: np.ndarray) -> None:
+        """Zero-gradient halos (wrap at periodic sides) for a centre scalar (porosity)."""
+        g = self.grid.halo
+        for d in range(3):
+            n = self.grid.shape[d]
+            for m in range(1, g + 1):
+                if self.periodic[d]:
+                    a[_sl(d, g - m)] = a[_sl(d, g + n - m)]
+                    a[_sl(d, g + n - 1 + m)] = a[_sl(d, g - 1 + m)]
+                else:
+                    a[_sl(d, g - m)] = a[_sl(d, g + m - 1)]
+                    a[_sl(d, g + n - 1 + m)] = a[_sl(d, g + n - m)]

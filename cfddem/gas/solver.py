@@ -1,0 +1,381 @@
+"""Volume-averaged Navier-Stokes solver for a given porosity field (physics.md sections 2-3).
+
+Time step (fractional step / incremental pressure projection; Chorin 1968, van Kan 1986),
+with eps_f the arithmetic face mean of the cell porosity, superscripts the time level:
+
+1. predictor, explicit in advection, viscosity, Coriolis, centrifugal force, gravity and the
+   source S, implicit in the linear drag ``-K (u - U_p)``::
+
+       (eps_f^{n+1} + dt K/rho) u* = eps_f^{n+1} u^n
+            + dt [ R^n - eps_f^{n+1} grad p^n / rho + (S + K U_p) / rho ]
+
+   (R^n from :mod:`cfddem.gas.momentum`; the face porosity at the new time multiplies the
+   pressure gradient and the body forces, so a hydrostatic rest state is exact);
+2. pressure increment phi from the porous continuity equation
+   ``(eps^{n+1} - eps^n)/dt + div(eps_f^{n+1} u^{n+1}) = 0``::
+
+       -div(a_f grad phi) = -(rho/dt) [ div(eps_f^{n+1} u*) + (eps^{n+1} - eps^n)/dt ],
+       a_f = (eps_f^{n+1})^2 / (eps_f^{n+1} + dt K/rho)
+
+   solved by AMG-preconditioned CG (:mod:`cfddem.gas.pressure`);
+3. correction ``u^{n+1} = u* - (dt/rho) eps_f/(eps_f + dt K/rho) grad phi`` on every face
+   that is not prescribed by a boundary condition, ``p^{n+1} = p^n + phi``.
+
+After step 3 the discrete porous continuity equation holds to the linear solver's
+tolerance, and the drag is implicit in both the predictor and the correction (no drag
+time-step limit).  The source S and the drag coefficient K are forces per unit volume of
+the whole cell (N/m^3 and N s/m^4); the coupling passes S = -S_p's explicit part.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cfddem.errors import CaseError
+from cfddem.gas.boundaries import BoundarySet
+from cfddem.gas.grid import Field, StaggeredGrid
+from cfddem.gas.momentum import momentum_rhs
+from cfddem.gas.operators import porous_divergence_kernel
+from cfddem.gas.pressure import PressureSolver
+
+_LOC = ("fcc", "cfc", "ccf")
+_NAMES = ("u", "v", "w")
+
+
+@dataclass
+class GasStepInfo:
+    """Outcome of one gas step."""
+
+    pressure_iterations: int
+    pressure_residual: float
+    cfl: float
+    max_divergence: float
+    ok: bool
+    message: str = ""
+    amg_rebuilt: bool = False
+    compatibility: float = 0.0
+
+
+def _shift(sl: tuple, d: int, by: int) -> tuple:
+    s = list(sl)
+    s[d] = slice(s[d].start + by, s[d].stop + by)
+    return tuple(s)
+
+
+class GasSolver:
+    """Staggered-grid volume-averaged Navier-Stokes solver.
+
+    Parameters
+    ----------
+    grid: StaggeredGrid (halo 2 for ``advection="tvd"`` or pressure outlets).
+    rho, mu: gas density [kg/m3] and viscosity [Pa s]; ``lambda_bulk`` bulk viscosity (0).
+    bcs: dict side -> BC for the six sides "x-", "x+", "y-", "y+", "z-", "z+".
+    gravity: (gx, gy, gz) [m/s2]; omega: frame rotation [rad/s]; axis_point: a point on
+    the rotation axis.
+    advection: "tvd" (van Leer, bounded) or "central" (second order).
+    tol, maxiter: pressure solver tolerance (relative residual) and iteration limit.
+    rebuild_threshold: relative coefficient change that triggers an AMG rebuild.
+    cfl_max: advective Courant number used by :meth:`max_stable_dt`.
+    """
+
+    def __init__(self, grid: StaggeredGrid, *, rho: float = 1.2, mu: float = 1.8e-5, bcs: dict,
+                 gravity=(0.0, 0.0, 0.0), omega=(0.0, 0.0, 0.0), axis_point=(0.0, 0.0, 0.0),
+                 advection: str = "tvd", tol: float = 1e-8, maxiter: int = 200, lambda_bulk: float = 0.0,
+                 rebuild_threshold: float = 0.05, cfl_max: float = 0.5):
+        if rho <= 0:
+            raise CaseError("gas.rho", f"must be positive, got {rho}")
+        if mu < 0:
+            raise CaseError("gas.mu", f"must be non-negative, got {mu}")
+        if advection not in ("tvd", "central"):
+            raise CaseError("gas.advection", f"'tvd' or 'central', got {advection!r}")
+        self.grid = grid
+        self.bc = BoundarySet(grid, bcs)
+        if grid.halo < 2 and (advection == "tvd" or any(k == "outlet" for k in self.bc.kinds.values())):
+            raise CaseError("gas.grid.halo", "TVD advection and pressure outlets need halo = 2")
+        self.rho = float(rho)
+        self.mu = float(mu)
+        self.nu = self.mu / self.rho
+        self.lam_ratio = float(lambda_bulk) / self.mu - 2.0 / 3.0 if self.mu > 0 else 0.0
+        self.gravity = tuple(float(x) for x in gravity)
+        self.omega = tuple(float(x) for x in omega)
+        self.axis_point = tuple(float(x) for x in axis_point)
+        self.advection = advection
+        self._scheme = 1 if advection == "tvd" else 0
+        self.cfl_max = float(cfl_max)
+        self.u, self.v, self.w = (grid.zeros(loc) for loc in _LOC)
+        self.p = grid.zeros("ccc")
+        self.eps = Field(grid, "ccc", np.ones(grid.array_shape("ccc")))
+        self._eps_prev = self.eps.data.copy()
+        self._eps_set = False
+        self.psolver = PressureSolver(grid, self.bc.pressure_bc, tol=tol, maxiter=maxiter,
+                                      rebuild_threshold=rebuild_threshold)
+        self._phi = np.zeros(grid.shape)
+        self._rhs = [np.zeros(grid.array_shape(loc)) for loc in _LOC]
+        self.time = 0.0
+        self.step_count = 0
+        self._last_dt = None
+        self._last_div = 0.0
+        self.fill_halos()
+
+    # --- state setting ------------------------------------------------------------------
+    @property
+    def velocity(self) -> tuple:
+        return (self.u, self.v, self.w)
+
+    def fill_halos(self) -> None:
+        self.bc.fill_velocity(self.u.data, self.v.data, self.w.data)
+        self.bc.fill_pressure(self.p.data)
+        self.bc.fill_scalar(self.eps.data)
+
+    def set_velocity(self, f) -> None:
+        """Initial velocity: ``f(x, y, z) -> (u, v, w)`` evaluated at each component's faces
+        (interior), or a tuple of three interior face arrays."""
+        for c, loc in enumerate(_LOC):
+            if callable(f):
+                X, Y, Z = self.grid.mesh(loc)
+                val = f(X, Y, Z)[c]
+            else:
+                val = f[c]
+            self.velocity[c].interior = np.broadcast_to(np.asarray(val, dtype=float), self.grid.interior_shape(loc))
+        self.fill_halos()
+
+    def set_pressure(self, f) -> None:
+        """Pressure at centres: ``f(x, y, z)`` or an (nx, ny, nz) array."""
+        if callable(f):
+            X, Y, Z = self.grid.mesh("ccc")
+            f = f(X, Y, Z)
+        self.p.interior = np.broadcast_to(np.asarray(f, dtype=float), self.grid.shape)
+        self.bc.fill_pressure(self.p.data)
+
+    def set_porosity(self, eps_centres: np.ndarray, *, initial: bool | None = None) -> None:
+        """Porosity at the cell centres for the end of the next step, shape (nx, ny, nz).
+
+        The porosity at the end of the last step is kept as eps^n for d(eps)/dt.  The first
+        call (or ``initial=True``) sets both, i.e. starts from d(eps)/dt = 0.
+        """
+        e = np.asarray(eps_centres, dtype=float)
+        if e.shape != self.grid.shape:
+            raise CaseError("gas.porosity", f"shape {e.shape}, expected {self.grid.shape}")
+        if not np.all(np.isfinite(e)) or e.min() <= 0.0 or e.max() > 1.0 + 1e-12:
+            bad = np.argwhere(~np.isfinite(e) | (e <= 0.0) | (e > 1.0 + 1e-12))[0]
+            raise CaseError("gas.porosity", f"must lie in (0, 1]; cell {tuple(int(i) for i in bad)} has {e[tuple(bad)]}")
+        self.eps.interior = e
+        self.bc.fill_scalar(self.eps.data)
+        if initial or (initial is None and not self._eps_set):
+            self._eps_prev = self.eps.data.copy()
+        self._eps_set = True
+
+    # --- time step ----------------------------------------------------------------------
+    def _face_arrays(self, arrs, name):
+        if arrs is None:
+            return None
+        if len(arrs) != 3:
+            raise CaseError(name, "need a tuple of three face arrays")
+        out = []
+        for c, a in enumerate(arrs):
+            a = np.asarray(a, dtype=float)
+            shape = self.grid.interior_shape(_LOC[c])
+            if a.shape != shape:
+                raise CaseError(name, f"component {c} has shape {a.shape}, expected {shape}")
+            out.append(a)
+        return out
+
+    def step(self, dt: float, *, source=None, drag_K=None, drag_Up=None) -> GasStepInfo:
+        """Advance by dt.  source: explicit force density S [N/m3]; drag_K [N s/m4] >= 0 and
+        drag_Up [m/s]: implicit drag ``-K (u - U_p)``; each a tuple of three interior face
+        arrays of shapes (nx+1,ny,nz), (nx,ny+1,nz), (nx,ny,nz+1)."""
+        dt = float(dt)
+        if not dt > 0:
+            raise CaseError("gas.dt", f"must be positive, got {dt}")
+        grid, g, rho = self.grid, self.grid.halo, self.rho
+        S = self._face_arrays(source, "gas.source")
+        K = self._face_arrays(drag_K, "gas.drag_K")
+        Up = self._face_arrays(drag_Up, "gas.drag_Up")
+        if K is not None and any(np.any(k < 0) for k in K):
+            raise CaseError("gas.drag_K", "must be >= 0")
+        if K is not None and Up is None:
+            raise CaseError("gas.drag_Up", "needed with drag_K")
+        eo, en = self._eps_prev, self.eps.data
+        self.bc.fill_scalar(en)
+        self.fill_halos()
+        vel = (self.u.data, self.v.data, self.w.data)
+        # --- 1. predictor ---------------------------------------------------------------
+        for c in range(3):
+            lo, hi = self.bc.face_range[c]
+            momentum_rhs(c, vel, eo, en, grid, nu=self.nu, lam_ratio=self.lam_ratio, scheme=self._scheme,
+                         omega=self.omega, gravity=self.gravity, axis_point=self.axis_point,
+                         face_range=(lo, hi), out=self._rhs[c])
+        coefs, ratios, new = [], [], []
+        for c in range(3):
+            lo, hi = self.bc.face_range[c]
+            h = grid.spacing[c]
+            full = list(grid.interior("fcc" if c == 0 else ("cfc" if c == 1 else "ccf")))
+            sl = list(full)
+            sl[c] = slice(g + lo, g + hi)
+            sl = tuple(sl)
+            # face porosity on all interior faces (for the pressure coefficients)
+            full = tuple(full)
+            ef_all = 0.5 * (en[_shift(full, c, -1)] + en[full])
+            if K is not None:
+                dk_all = dt * K[c] / rho
+            else:
+                dk_all = 0.0
+            denom_all = ef_all + dk_all
+            coefs.append(ef_all * ef_all / denom_all)
+            ratio_all = ef_all / denom_all
+            ratios.append(ratio_all)
+            isl = [slice(None)] * 3
+            isl[c] = slice(lo, hi)
+            isl = tuple(isl)
+            ef = ef_all[isl]
+            gradp = (self.p.data[sl] - self.p.data[_shift(sl, c, -1)]) / h
+            u0 = vel[c][sl]
+            numer = ef * u0 + dt * (self._rhs[c][sl] - ef * gradp / rho)
+            if S is not None:
+                numer += dt * S[c][isl] / rho
+            if K is not None:
+                numer += dt * K[c][isl] * Up[c][isl] / rho
+            den = denom_all[isl] if K is not None else ef
+            new.append((sl, isl, numer / den))
+        for c in range(3):
+            sl, isl, val = new[c]
+            vel[c][sl] = val
+        self.bc.fill_velocity(*vel)
+        # --- 2. pressure increment --------------------------------------------------------
+        for c in range(3):
+            if self.bc.periodic[c]:  # face n is face 0
+                s_n = [slice(None)] * 3
+                s_0 = [slice(None)] * 3
+                s_n[c] = -1
+                s_0[c] = 0
+                coefs[c][tuple(s_n)] = coefs[c][tuple(s_0)]
+        self.psolver.set_coefficients(*coefs)
+        nx, ny, nz = grid.shape
+        dx, dy, dz = grid.spacing
+        div = np.zeros(grid.array_shape("ccc"))
+        porous_divergence_kernel(vel[0], vel[1], vel[2], en, 1.0 / dx, 1.0 / dy, 1.0 / dz, g, nx, ny, nz, div)
+        ci = grid.interior("ccc")
+        deps = (en[ci] - eo[ci]) / dt
+        b = -(rho / dt) * (div[ci] + deps)
+        phi, sinfo = self.psolver.solve(b, x0=self._phi)
+        self._phi = phi
+        # --- 3. correction ----------------------------------------------------------------
+        phif = np.zeros(grid.array_shape("ccc"))
+        phif[ci] = phi
+        self.bc.fill_pressure(phif, homogeneous=True)
+        for c in range(3):
+            sl, isl, _ = new[c]
+            h = grid.spacing[c]
+            vel[c][sl] -= (dt / rho) * ratios[c][isl] * (phif[sl] - phif[_shift(sl, c, -1)]) / h
+        self.p.data[ci] += phi
+        self.bc.fill_pressure(self.p.data)
+        self.bc.fill_velocity(*vel)
+        # --- diagnostics ------------------------------------------------------------------
+        porous_divergence_kernel(vel[0], vel[1], vel[2], en, 1.0 / dx, 1.0 / dy, 1.0 / dz, g, nx, ny, nz, div)
+        self._last_div = float(np.max(np.abs(div[ci] + deps))) * dt
+        self._eps_prev = en.copy()
+        self.time += dt
+        self.step_count += 1
+        self._last_dt = dt
+        cfl = dt * self._advective_rate()
+        ok, msg = True, ""
+        bad = self._first_nonfinite()
+        if bad:
+            ok, msg = False, bad
+        elif not sinfo.converged:
+            ok = False
+            msg = (f"pressure solver did not converge: relative residual {sinfo.residual:.3e} after "
+                   f"{sinfo.iterations} iterations (tol {self.psolver.tol:.1e})")
+        return GasStepInfo(sinfo.iterations, sinfo.residual, cfl, self._last_div, ok, msg,
+                           sinfo.rebuilt, sinfo.compatibility)
+
+    def _first_nonfinite(self) -> str:
+        for name, f in (("u", self.u), ("v", self.v), ("w", self.w), ("p", self.p)):
+            a = f.interior
+            if not np.all(np.isfinite(a)):
+                idx = tuple(int(i) for i in np.argwhere(~np.isfinite(a))[0])
+                pos = tuple(float(self.grid.coords(f.location, d, with_halo=False)[idx[d]]) for d in range(3))
+                return (f"non-finite gas {name} = {a[idx]} at {f.location} index {idx} "
+                        f"(x, y, z = {pos[0]:.4g}, {pos[1]:.4g}, {pos[2]:.4g}) at t = {self.time:.6g}")
+        return ""
+
+    # --- time-step limits -------------------------------------------------------------
+    def _advective_rate(self) -> float:
+        dx, dy, dz = self.grid.spacing
+        return float(np.max(np.abs(self.u.interior)) / dx + np.max(np.abs(self.v.interior)) / dy
+                     + np.max(np.abs(self.w.interior)) / dz)
+
+    def max_stable_dt(self) -> float:
+        """Largest stable step of the explicit terms:
+
+        * advection: ``cfl_max / (max|u|/dx + max|v|/dy + max|w|/dz)``;
+        * viscosity (explicit Euler): ``1 / (2 nu_e S)``, ``S = max_c [sum_d 1/h_d^2 +
+          (1 + lam_ratio)/h_c^2]``, ``nu_e = nu max(eps)/min(eps)``;
+        * Coriolis (explicit): ``0.05 / |Omega|`` (amplification ``sqrt(1 + (2|Omega|dt)^2)``
+          per step stays below 1 + 5e-3).
+        Drag is implicit and sets no limit.
+        """
+        lims = [np.inf]
+        rate = self._advective_rate()
+        if rate > 0:
+            lims.append(self.cfl_max / rate)
+        if self.nu > 0:
+            e = self.eps.interior
+            nu_e = self.nu * float(e.max() / e.min())
+            inv = [1.0 / h**2 for h in self.grid.spacing]
+            S = max(sum(inv) + max(1.0 + self.lam_ratio, 0.0) * inv[c] for c in range(3))
+            lims.append(1.0 / (2.0 * nu_e * S))
+        om = float(np.linalg.norm(self.omega))
+        if om > 0:
+            lims.append(0.05 / om)
+        return float(min(lims))
+
+    # --- output and diagnostics ---------------------------------------------------------
+    def cell_centred_velocity(self) -> np.ndarray:
+        """Velocity averaged from the faces to the cell centres, shape (nx, ny, nz, 3)."""
+        g = self.grid.halo
+        nx, ny, nz = self.grid.shape
+        out = np.empty((nx, ny, nz, 3))
+        u, v, w = self.u.data, self.v.data, self.w.data
+        out[..., 0] = 0.5 * (u[g:g + nx, g:g + ny, g:g + nz] + u[g + 1:g + nx + 1, g:g + ny, g:g + nz])
+        out[..., 1] = 0.5 * (v[g:g + nx, g:g + ny, g:g + nz] + v[g:g + nx, g + 1:g + ny + 1, g:g + nz])
+        out[..., 2] = 0.5 * (w[g:g + nx, g:g + ny, g:g + nz] + w[g:g + nx, g:g + ny, g + 1:g + nz + 1])
+        return out
+
+    def divergence_residual(self) -> float:
+        """max |d(eps)/dt + div(eps_f u)| * dt of the last step (0 before the first step)."""
+        return self._last_div
+
+    # --- restart --------------------------------------------------------------------------
+    def get_state(self) -> dict:
+        """Evolving state for a bit-identical restart (arrays are copies)."""
+        ref = self.psolver.reference_coefficients
+        return {
+            "u": self.u.data.copy(), "v": self.v.data.copy(), "w": self.w.data.copy(),
+            "p": self.p.data.copy(), "eps": self.eps.data.copy(), "eps_prev": self._eps_prev.copy(),
+            "phi": self._phi.copy(), "time": float(self.time), "step_count": int(self.step_count),
+            "eps_set": bool(self._eps_set),
+            "amg_reference_coefficients": None if ref is None else ref,
+        }
+
+    def set_state(self, d: dict) -> None:
+        for name, f in (("u", self.u), ("v", self.v), ("w", self.w), ("p", self.p), ("eps", self.eps)):
+            a = np.asarray(d[name], dtype=float)
+            if a.shape != f.data.shape:
+                raise CaseError(f"gas.state.{name}", f"shape {a.shape}, expected {f.data.shape}")
+            f.data[...] = a
+        self._eps_prev = np.array(d["eps_prev"], dtype=float)
+        self._phi = np.array(d["phi"], dtype=float)
+        self.time = float(d["time"])
+        self.step_count = int(d["step_count"])
+        self._eps_set = bool(d.get("eps_set", True))
+        ref = d.get("amg_reference_coefficients")
+        if ref is not None:
+            ref = np.asarray(ref, dtype=float)
+            s = self.psolver._fshapes
+            o = np.cumsum([0] + [int(np.prod(x)) for x in s])
+            self.psolver.set_coefficients(*(ref[o[i]:o[i + 1]].reshape(s[i]) for i in range(3)))
+            self.psolver.rebuild()
+        self.fill_halos()

@@ -1,0 +1,103 @@
+"""Staggered grid, located fields and the tiny operators (cfddem.gas.grid / operators)."""
+
+import numba
+import numpy as np
+import pytest
+
+from cfddem.gas import StaggeredGrid
+from cfddem.gas import operators as op
+from cfddem.gas.grid import Field
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread():
+    n = numba.get_num_threads()
+    numba.set_num_threads(1)
+    yield
+    numba.set_num_threads(n)
+
+
+def make_grid(shape=(5, 4, 3), halo=2):
+    return StaggeredGrid(shape, (1.0, 0.8, 0.6), origin=(-0.3, 0.1, 2.0), halo=halo)
+
+
+def test_coordinates_and_shapes():
+    g = make_grid()
+    assert g.spacing == pytest.approx((0.2, 0.2, 0.2))
+    assert g.centres(0)[0] == pytest.approx(-0.2)
+    assert g.faces(2)[-1] == pytest.approx(2.6)
+    assert g.array_shape("fcc") == (10, 8, 7)
+    assert g.array_shape("ccf") == (9, 8, 8)
+    # halo coordinates continue the uniform spacing
+    assert np.allclose(np.diff(g.coords("cfc", 1)), 0.2)
+    assert g.coords("cfc", 1)[g.halo] == pytest.approx(0.1)
+    assert g.coords("ccc", 0)[g.halo] == pytest.approx(-0.2)
+
+
+def test_field_location_mismatch_raises():
+    g = make_grid()
+    u, p = g.zeros("fcc"), g.zeros("ccc")
+    with pytest.raises(ValueError, match="location mismatch"):
+        u + p
+    with pytest.raises(ValueError, match="location mismatch"):
+        p -= u
+    with pytest.raises(ValueError, match="location"):
+        Field(g, "xyz")
+    with pytest.raises(ValueError, match="array shape"):
+        Field(g, "fcc", np.zeros(g.array_shape("ccc")))
+    s = u + u * 2.0
+    assert s.location == "fcc"
+    other = StaggeredGrid((5, 4, 4), (1.0, 0.8, 0.6))
+    with pytest.raises(ValueError):
+        other.zeros("ccc") + p
+
+
+def _fill(g, loc, f):
+    X, Y, Z = g.mesh(loc, with_halo=True)
+    return Field(g, loc, f(X, Y, Z))
+
+
+@pytest.mark.parametrize("d", [0, 1, 2])
+def test_operators_exact_for_linear_fields(d):
+    g = make_grid()
+    coef = (1.3, -0.7, 2.1)
+    lin = lambda X, Y, Z: 0.4 + coef[0] * X + coef[1] * Y + coef[2] * Z  # noqa: E731
+    p = _fill(g, "ccc", lin)
+    floc = ("fcc", "cfc", "ccf")[d]
+    exact_face = _fill(g, floc, lin)
+    sl = g.interior(floc)
+    assert np.allclose(op.interp_to_face(p, d).data[sl], exact_face.data[sl], atol=1e-13, rtol=0)
+    assert np.allclose(op.grad_to_face(p, d).data[sl], coef[d], atol=1e-12, rtol=0)
+    f = _fill(g, floc, lin)
+    ci = g.interior("ccc")
+    assert np.allclose(op.interp_to_centre(f, d).data[ci], p.data[ci], atol=1e-13, rtol=0)
+    assert np.allclose(op.diff_to_centre(f, d).data[ci], coef[d], atol=1e-12, rtol=0)
+
+
+def test_divergence_and_porous_divergence_exact_for_linear_fields():
+    g = make_grid()
+    u = _fill(g, "fcc", lambda X, Y, Z: 1.0 + 2.0 * X - Y)
+    v = _fill(g, "cfc", lambda X, Y, Z: 0.5 - 3.0 * Y + Z)
+    w = _fill(g, "ccf", lambda X, Y, Z: 4.0 * Z + X)
+    ci = g.interior("ccc")
+    assert np.allclose(op.divergence(u, v, w).data[ci], 2.0 - 3.0 + 4.0, atol=1e-12, rtol=0)
+    # div(eps U) with constant U and linear eps: U . grad(eps)
+    U = (0.3, -1.1, 0.7)
+    uc, vc, wc = (_fill(g, loc, lambda X, Y, Z, c=c: 0 * X + c) for loc, c in zip(("fcc", "cfc", "ccf"), U))
+    eps = _fill(g, "ccc", lambda X, Y, Z: 0.6 + 0.1 * X - 0.2 * Y + 0.05 * Z)
+    expect = U[0] * 0.1 - U[1] * 0.2 + U[2] * 0.05
+    assert np.allclose(op.porous_divergence(uc, vc, wc, eps).data[ci], expect, atol=1e-12, rtol=0)
+    with pytest.raises(ValueError):
+        op.divergence(v, u, w)
+
+
+def test_gradient_second_order_for_smooth_field():
+    errs = []
+    for n in (8, 16, 32):
+        g = StaggeredGrid((n, 2, 2), (1.0, 1.0, 1.0))
+        p = _fill(g, "ccc", lambda X, Y, Z: np.sin(2 * np.pi * X))
+        gx = op.gradient(p)[0]
+        X = g.mesh("fcc")[0]
+        errs.append(np.max(np.abs(gx.interior - 2 * np.pi * np.cos(2 * np.pi * X))))
+    orders = np.log2(np.array(errs[:-1]) / np.array(errs[1:]))
+    assert np.all(np.abs(orders - 2.0) < 0.1), orders
