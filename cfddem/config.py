@@ -179,6 +179,9 @@ SCHEMA: dict[str, dict] = {
         "cells": Key("ints", [16, 15, 150], "-", "gas grid NX, NY, NZ"),
         "height": _pos(0.045, "m", "height of the gas domain above the floor"),
         "coupling_interval": Key("int", 10, "-", "particle steps per gas step", lo=1),
+        "drag_treatment": Key("str", "implicit", "-", "'implicit': drag implicit in the gas step and bounded "
+                              "(exact exponential relaxation) for the particles, stable for any particle relaxation "
+                              "time; 'explicit': forward Euler, for comparison", choices=("implicit", "explicit")),
         "drag": Key("str", "beetstra", "-", "drag closure",
                     choices=("beetstra", "wen_yu", "ergun_gidaspow", "di_felice", "koch_hill")),
         "lid": Key("str", "crosswind", "-", "open-top boundary: 'crosswind' (lab air at rest seen from the rotating "
