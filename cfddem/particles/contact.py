@@ -149,8 +149,10 @@ def linear_law(kn, cn, kt, ct, mu, meff, dn, nx, ny, nz, vx, vy, vz, hx, hy, hz,
         F_n = -k_n d_n n - eta_n v_n,         eta_n = c_n sqrt(m* k_n)
         d_t <- d_t + v_t dt_hist
         F_t = -k_t d_t - eta_t v_t,           eta_t = c_t sqrt(m* k_t)
-        if |F_t| > mu |F_n|:  F_t <- mu |F_n| F_t/|F_t|,  d_t <- -F_t / k_t   (sliding: the spring
-                                                           alone carries the limited force)
+        if |F_t| > mu |F_n|:  F_t <- mu |F_n| F_t/|F_t|,
+                              d_t <- -(F_t + eta_t v_t) / k_t
+    (sliding: d_t is reset so that spring + dashpot give exactly the limited force, as LIGGGHTS'
+    ``tangential history``; re-evaluating the law at the same state is then idempotent)
 
     The normal force is not clipped at zero (so that the contact lasts exactly t_c and restitutes
     e_n, as derived).  Returns (F on a (3), F_t (3), new d_t (3), |F_n|).
@@ -177,9 +179,9 @@ def linear_law(kn, cn, kt, ct, mu, meff, dn, nx, ny, nz, vx, vy, vz, hx, hy, hz,
         fty *= s
         ftz *= s
         if kt > 0.0:
-            hx = -ftx / kt
-            hy = -fty / kt
-            hz = -ftz / kt
+            hx = -(ftx + eta_t * vtx) / kt
+            hy = -(fty + eta_t * vty) / kt
+            hz = -(ftz + eta_t * vtz) / kt
     return (fn * nx + ftx, fn * ny + fty, fn * nz + ftz, ftx, fty, ftz, hx, hy, hz, fnabs)
 
 
