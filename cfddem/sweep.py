@@ -5,7 +5,8 @@ rows of a ``--variants`` TOML/CSV file, or both combined) as one Dask task per v
 into its own run folder ``SWEEP_DIR/<key1>=<v1>__<key2>=<v2>`` (sanitised), and writes
 
 * ``SWEEP_DIR/summary.csv``  one row per variant: the varied keys, ``status`` (done, failed,
-  skipped; ``stopped`` for a run that hit its step or wall-time limit), ``wall_time``, the
+  skipped; the run's own ``stopped`` or ``interrupted`` for a run that hit its step or
+  wall-time limit or got SIGINT/SIGTERM), ``wall_time``, the
   numba ``threads`` of the task, the run's ``steps`` and final ``time``, the measurements
   ``n_particles``, ``mass_out``, final ``mean_velocity_z`` (last row of ``/series``) and every
   scalar under ``/measurements`` of its ``results.h5`` (column ``/``-joined path), ``error``;
@@ -23,8 +24,9 @@ workers share with this machine).
 
 Restart: a variant whose folder holds a ``run.json`` with status ``"done"``, a readable
 ``results.h5`` and the same resolved configuration as the variant now is *skipped* (its
-summary is read back from the folder); every other variant is (re-)run from the start.
-The run API has no ``resume=True`` yet; :func:`simulation_kwargs` is the one place to add it.
+summary is read back from the folder).  A variant whose folder holds an unfinished run of the
+same configuration with a checkpoint (a crash, a killed worker, a wall-time stop) is continued
+with ``Simulation(..., resume=True)``; every other variant is run from the start.
 
 Dask is an optional dependency (``pip install cfddem[sweep]``), imported only when a sweep
 runs; without it the sweep stops with a one-line :class:`~cfddem.errors.CaseError`.
@@ -47,7 +49,7 @@ from typing import Any, Callable, Iterable
 
 from .errors import CaseError, RunError
 
-STATUSES = ("done", "failed", "skipped", "stopped")
+STATUSES = ("done", "failed", "skipped", "stopped", "interrupted")
 RUN_INFO = ("wall_time", "threads", "steps", "time")
 BASE_MEASUREMENTS = ("n_particles", "mass_out", "mean_velocity_z")
 MAX_NAME = 150  # characters of a variant folder name before it is shortened with a hash
@@ -354,12 +356,36 @@ def _flatten_measurements(tree: dict, prefix: str = "") -> dict[str, float]:
     return out
 
 
-def simulation_kwargs(out: Path) -> dict:
-    """Keyword arguments of ``Simulation`` for a sweep task.  The run API has no
-    ``resume=True`` yet, so an incomplete variant restarts from t = 0; when it has, add
-    ``kw["resume"] = True`` here (the run folder's checkpoints are then continued)."""
-    kw = dict(overwrite=True, echo=False, progress=False)
-    return kw
+def _same_config(out: Path, case) -> bool:
+    try:
+        from .io.results import read_config
+
+        _, stored = read_config(out / "results.h5")
+    except Exception:
+        return False
+    return stored == _canonical(case.resolved)
+
+
+def can_resume(out: str | Path, case) -> bool:
+    """True when ``out`` holds an unfinished run of exactly this case that left a checkpoint:
+    ``run.json`` with a status other than ``"done"`` (``running`` after a crash or a killed
+    worker, ``interrupted``, ``stopped``, ``failed``), ``results.h5`` holding the same resolved
+    configuration, and a checkpoint file under ``checkpoints/``."""
+    from .io.checkpoint import list_checkpoints
+
+    out = Path(out)
+    meta = _read_run_json(out)
+    if not meta or meta.get("status") == "done" or not _same_config(out, case):
+        return False
+    return bool(list_checkpoints(out / "checkpoints"))
+
+
+def simulation_kwargs(out: Path, case) -> dict:
+    """Keyword arguments of ``Simulation`` for a sweep task: a fresh run (replacing what a
+    cfddem run wrote in ``out``), or ``resume=True`` to continue from the newest valid
+    checkpoint when :func:`can_resume` (the run API makes the result bit-identical to an
+    uninterrupted run on the same machine and thread count)."""
+    return dict(overwrite=True, echo=False, progress=False, resume=can_resume(out, case))
 
 
 def task_threads(threads: int | None) -> int:
@@ -397,9 +423,18 @@ def run_variant(case_path: str, overrides: dict[str, Any], out_dir: str, threads
     out = Path(out_dir)
     status, error = "failed", ""
     n = task_threads(threads)
+    resumed = False
     try:
         case = load_case(case_path, overrides=dict(overrides))
-        summary = Simulation(case, out, threads=n, **simulation_kwargs(out)).run()
+        kw = simulation_kwargs(out, case)
+        resumed = kw["resume"]
+        try:
+            summary = Simulation(case, out, threads=n, **kw).run()
+        except CaseError:
+            if not resumed:
+                raise
+            resumed = False  # no usable checkpoint after all: run it afresh
+            summary = Simulation(case, out, threads=n, **dict(kw, resume=False)).run()
         status, error = summary.status, summary.message
     except CaseError as e:
         error = f"bad input: {e}"
@@ -415,7 +450,8 @@ def run_variant(case_path: str, overrides: dict[str, Any], out_dir: str, threads
         fresh = False
     row = read_run_summary(out) if fresh else {"measurements": {}}
     row.pop("error", None)
-    row.update(status=status, error=error, wall_time=_time.perf_counter() - t0, threads=n, out_dir=str(out))
+    row.update(status=status, error=error, wall_time=_time.perf_counter() - t0, threads=n, out_dir=str(out),
+               resumed=resumed)
     return row
 
 
@@ -723,7 +759,7 @@ def _run_on_dask(case_arg: str, todo: list[tuple[int, dict]], rows: list[dict], 
             done += 1
             msg = f": {r['error']}" if r.get("error") else ""
             wt = r.get("wall_time")
-            say(f"[{done}/{len(todo)}] {r['name']} {r['status']}"
+            say(f"[{done}/{len(todo)}] {r['name']} {r['status']}" + (" (resumed)" if r.get("resumed") else "")
                 + (f" ({wt:.1f} s)" if isinstance(wt, float) else "") + msg)
     finally:
         if client is not None:

@@ -12,6 +12,7 @@ Worker start-up and the numba compile dominate: every worker shares ``NUMBA_CACH
 from __future__ import annotations
 
 import csv
+import json
 import os
 import shutil
 import subprocess
@@ -198,3 +199,26 @@ def test_sweep_on_a_separately_started_scheduler(dask_scheduler, tmp_path, capsy
     with pytest.raises(CaseError, match=r"--scheduler: cannot connect to tcp://127.0.0.1:9") as e:
         S.run_sweep(BOX, [{MU: 0.2}], tmp_path / "s2", scheduler="tcp://127.0.0.1:9", connect_timeout=2, echo=None)
     assert "\n" not in str(e.value)
+
+
+def test_rerun_resumes_an_unfinished_variant_from_its_checkpoint(tmp_path):
+    """A variant whose run was cut short (run.json still "running", as after a killed worker)
+    is continued from its newest checkpoint, and ends where an uninterrupted run ends."""
+    variants = [{MU: 0.1, "checkpoint.interval": 0.004}]
+    out = tmp_path / "sweep"
+    first = S.run_sweep(BOX, variants, out, workers=1, threads=1, echo=None)[0]
+    assert first["status"] == "done" and first["resumed"] is False
+    run = out / first["name"]
+    ckpts = sorted((run / "checkpoints").glob("*.h5"))
+    assert len(ckpts) == 2  # t = 4 ms and 8 ms (keep = 2)
+    ckpts[-1].unlink()  # the crash came before the 8 ms checkpoint
+    meta = json.loads((run / "run.json").read_text())
+    (run / "run.json").write_text(json.dumps(dict(meta, status="running")))
+    lines = []
+    again = S.run_sweep(BOX, variants, out, workers=1, threads=1, echo=lines.append)[0]
+    assert again["status"] == "done" and again["resumed"] is True
+    assert any("(resumed)" in s for s in lines)
+    assert "resuming from" in (run / "run.log").read_text()
+    assert again["steps"] == 1000
+    assert again["mean_velocity_z"] == first["mean_velocity_z"]  # bit-identical continuation
+    assert S.run_sweep(BOX, variants, out, echo=None)[0]["status"] == "skipped"

@@ -244,7 +244,18 @@ def test_run_variant_returns_failed_row_for_bad_input(tmp_path):
     assert not (tmp_path / "v").exists()
 
 
-def test_simulation_kwargs_are_a_fresh_run_until_resume_exists(tmp_path):
-    kw = S.simulation_kwargs(tmp_path)
-    assert kw == {"overwrite": True, "echo": False, "progress": False}
-    assert not math.isnan(S._cores())
+def test_resume_only_an_unfinished_run_of_the_same_case_with_a_checkpoint(tmp_path):
+    case = load_case(BOX, overrides={"contact.particle_wall.mu": 0.1})
+    other = load_case(BOX, overrides={"contact.particle_wall.mu": 0.5})
+    out = fake_run(tmp_path / "a", case, status="running")
+    assert not S.can_resume(out, case)  # no checkpoint
+    from cfddem.io.checkpoint import checkpoint_path
+
+    (out / "checkpoints").mkdir()
+    checkpoint_path(out / "checkpoints", 500).write_bytes(b"x")  # validity is the run's business
+    assert S.can_resume(out, case) and S.simulation_kwargs(out, case) == \
+        {"overwrite": True, "echo": False, "progress": False, "resume": True}
+    assert not S.can_resume(out, other)  # another configuration: start afresh
+    (out / "run.json").write_text('{"status": "done"}')
+    assert not S.can_resume(out, case)
+    assert S.simulation_kwargs(tmp_path / "new", case)["resume"] is False
