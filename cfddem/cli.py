@@ -2,6 +2,8 @@
 
     cfddem run CASE [--out DIR] [--set K=V]... [--end-time T] [--overwrite | --resume] [--threads N] [--force]
     cfddem check CASE [--set K=V]...
+    cfddem compare RUN_A RUN_B [--out DIR]
+    cfddem sweep CASE --vary KEY=V1,V2,... [--scheduler ADDRESS] [--workers N]
     cfddem report OUT
 
 Exit codes: 0 success, 2 bad input (one line on stderr), 3 a run that failed (blow-up or solver
@@ -45,6 +47,19 @@ def _parser() -> argparse.ArgumentParser:
     c = sub.add_parser("check", help="validate a case and print its derived numbers")
     c.add_argument("case")
     c.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
+
+    cmp_ = sub.add_parser("compare", help="compare two runs (e.g. gas against no gas): Markdown/HTML report")
+    cmp_.add_argument("run_a", help="run folder A (the reference, e.g. without gas)")
+    cmp_.add_argument("run_b", help="run folder B")
+    cmp_.add_argument("--out", help="report folder (default: RUN_B/compare)")
+    cmp_.add_argument("--labels", nargs=2, metavar=("A", "B"), help="labels of the runs in the report")
+
+    try:
+        from .sweep import add_sweep_parser
+    except ImportError:  # pragma: no cover
+        add_sweep_parser = None
+    if add_sweep_parser is not None:
+        add_sweep_parser(sub)
 
     rep = sub.add_parser("report", help="(re)write the PNG plots of a finished run")
     rep.add_argument("out", help="a run folder (holding results.h5)")
@@ -105,6 +120,22 @@ def _dispatch(args) -> int:
         if summary.status == "interrupted" and sim._signal is not None:
             return 128 + int(sim._signal)
         return 0
+    if args.command == "compare":
+        from pathlib import Path
+
+        from .report.compare import compare_runs
+
+        out = Path(args.out) if args.out else Path(args.run_b) / "compare"
+        summary = compare_runs(args.run_a, args.run_b, out, labels=tuple(args.labels) if args.labels else (None, None))
+        print(f"velocity at the chute end: A {summary['velocity_end_a']:.4f} m/s, B {summary['velocity_end_b']:.4f} m/s, "
+              f"(B - A)/A = {100 * summary['relative_difference_end']:+.2f} %; wall time B/A = "
+              f"{summary['wall_time_ratio']:.3f}")
+        print(f"report: {out / 'report.md'}, {out / 'report.html'}, {out / 'summary.json'}")
+        return 0
+    if args.command == "sweep":
+        from .sweep import run_sweep_from_args
+
+        return run_sweep_from_args(args)
     if args.command == "report":
         from pathlib import Path
 
