@@ -17,7 +17,10 @@ while the coefficients change by less than ``rebuild_threshold`` (max relative c
 with the old hierarchy as preconditioner still converges to the tolerance on the current
 matrix, only in a few more iterations.  Without a Dirichlet face the system is singular
 (constants are its null space): the right-hand side is projected onto the range (its mean
-removed; the removed mean is reported as ``compatibility``) and the solution's mean set to 0.
+removed; the removed mean is reported as ``compatibility``), one cell is pinned by doubling
+its diagonal entry (``A + a_00 e_0 e_0^T`` is positive definite and, for a compatible
+right-hand side, has the singular system's solution with ``phi_0 = 0``), and the solution's
+mean is then set to 0.
 
 The matrix has a fixed CSR pattern built once; its values are refreshed by a compiled
 loop.  ``tol`` is the relative residual ``||b - A phi|| <= tol ||b||``.
@@ -161,6 +164,10 @@ class PressureSolver:
         coef = np.concatenate([np.ascontiguousarray(ax).ravel(), np.ascontiguousarray(ay).ravel(),
                                np.ascontiguousarray(az).ravel()])
         _assemble(self.A.data, self._pos_diag, self._pos_off, self._fidx, self._ftype, coef, self._scale)
+        if self.singular:
+            # pin cell 0: A + a00 e0 e0^T is positive definite; for a compatible right-hand
+            # side (mean removed) its solution solves the singular system with phi_0 = 0
+            self.A.data[self._pos_diag[0]] *= 2.0
         self._coef = coef
 
     def needs_rebuild(self) -> bool:
@@ -173,8 +180,16 @@ class PressureSolver:
     def rebuild(self) -> None:
         """(Re)build the AMG hierarchy for the current matrix."""
         smoother = ("gauss_seidel", {"sweep": "symmetric"})
-        self._ml = pyamg.smoothed_aggregation_solver(self.A, B=np.ones((self.N, 1)), max_coarse=50,
-                                                     presmoother=smoother, postsmoother=smoother)
+        # pyamg estimates spectral radii from a random start vector (numpy's global RNG):
+        # seed it for the build so that the same matrix always gives the same hierarchy
+        # (bit-identical restarts), and give the caller's RNG state back afterwards.
+        rng_state = np.random.get_state()
+        np.random.seed(20240531)
+        try:
+            self._ml = pyamg.smoothed_aggregation_solver(self.A.copy(), B=np.ones((self.N, 1)), max_coarse=50,
+                                                         presmoother=smoother, postsmoother=smoother)
+        finally:
+            np.random.set_state(rng_state)
         self._M = self._ml.aspreconditioner(cycle="V")
         self._coef_ref = self._coef.copy()
         self.n_rebuilds += 1
@@ -215,9 +230,9 @@ class PressureSolver:
             return np.zeros(self.grid.shape), SolveInfo(0, 0.0, True, rebuilt, compat)
         res = []
         x, info = pyamg.krylov.cg(self.A, rhs, x0=x, tol=self.tol, maxiter=self.maxiter, M=self._M, residuals=res)
+        r = float(np.linalg.norm(rhs - self.A @ x)) / bnorm
         if self.singular:
             x -= x.mean()
-        r = float(np.linalg.norm(rhs - self.A @ x)) / bnorm
         converged = bool(np.isfinite(r) and r <= self.tol * 1.0001)
         if not np.all(np.isfinite(x)):
             converged = False

@@ -1,0 +1,55 @@
+"""Square-duct Poiseuille flow: flow rate and second-order convergence.
+
+Duct of side L along z (periodic), no-slip side walls, driven by a uniform body force G
+(the pressure gradient) passed as the explicit momentum source, eps = 1.  The exact flow
+rate (e.g. White, Viscous Fluid Flow, eq. 3-48, a = b = L/2) is
+
+    Q = G L^4 / (12 mu) [1 - (192 / pi^5) sum_{n odd} tanh(n pi / 2) / n^5]
+      = G L^4 / (28.454 mu).
+"""
+
+import numba
+import numpy as np
+import pytest
+
+from cfddem.gas import GasSolver, NoSlip, Periodic, StaggeredGrid
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread():
+    n = numba.get_num_threads()
+    numba.set_num_threads(1)
+    yield
+    numba.set_num_threads(n)
+
+
+def q_exact(G, L, mu):
+    n = np.arange(1, 200, 2)
+    return G * L**4 / (12 * mu) * (1 - 192 / np.pi**5 * np.sum(np.tanh(n * np.pi / 2) / n**5))
+
+
+def duct_flow_rate(N, G=2.0, L=0.1, mu=1e-3, rho=1.0):
+    g = StaggeredGrid((N, N, 1), (L, L, L / N))
+    bcs = {"x-": NoSlip(), "x+": NoSlip(), "y-": NoSlip(), "y+": NoSlip(), "z-": Periodic(), "z+": Periodic()}
+    s = GasSolver(g, rho=rho, mu=mu, bcs=bcs, advection="tvd")
+    src = (np.zeros(g.interior_shape("fcc")), np.zeros(g.interior_shape("cfc")), np.full(g.interior_shape("ccf"), G))
+    dt = 0.9 * s.max_stable_dt()
+    nsteps = int(0.6 * L * L * rho / mu / dt)  # slowest mode decays by exp(-2 pi^2 * 0.6) ~ 7e-6
+    for _ in range(nsteps):
+        info = s.step(dt, source=src)
+        assert info.ok, info.message
+    assert s.divergence_residual() < 1e-12
+    w = s.w.interior[:, :, 0]
+    assert np.all(w > 0)
+    return w.sum() * (L / N) ** 2
+
+
+def test_square_duct_flow_rate_and_order():
+    G, L, mu = 2.0, 0.1, 1e-3
+    qe = q_exact(G, L, mu)
+    assert qe == pytest.approx(G * L**4 / (28.454 * mu), rel=1e-4)
+    errs = [abs(duct_flow_rate(N, G, L, mu) - qe) / qe for N in (8, 16, 32)]
+    orders = np.log2(np.array(errs[:-1]) / np.array(errs[1:]))
+    print("relative flow-rate errors", errs, "orders", orders)
+    assert errs[-1] < 0.01
+    assert np.all(np.abs(orders - 2.0) < 0.15), orders
