@@ -1,0 +1,602 @@
+"""Two-way momentum exchange between the gas solver and the particles (physics.md section 4).
+
+:class:`CoupledGas` owns a :class:`cfddem.gas.GasSolver` and drives a
+:class:`cfddem.particles.system.ParticleSystem`: the gas takes one step of ``dt_g = N dt``
+every ``N = coupling_interval`` particle steps, and the particles receive the drag and
+pressure forces as ``system.ext_force`` for the following N steps.
+
+Scheme (one coupling step, at particle time t; superscript n+1 = the gas after its step)
+----------------------------------------------------------------------------------------
+1. Porosity ``eps_c = 1 - sum_a w_ac V_a / V_cell`` (:func:`cfddem.coupling.mapping.porosity`,
+   trilinear, wall fold).  Cells below ``eps_min`` are counted and logged with their minimum
+   and location; nothing is clipped unless ``eps_floor`` is set (then the clipped cells are
+   logged and counted in the series).  A cell with ``eps <= 0`` and no floor stops the run
+   with a message naming the cell.  ``gas.set_porosity(eps)``.
+2. Per particle: porosity ``eps_a`` and gas velocity ``u_a`` interpolated with the same
+   weights (each velocity component from its own face grid), ``Re_a = eps_a rho |u_a - v_a|
+   d_a / mu``, ``F_a = closure(eps_a, Re_a)``, and the drag coefficient
+   ``K_a = V_a beta_a / (1 - eps_a) = 3 pi mu d_a eps_a F_a`` [kg/s].
+
+   * ``drag_treatment="implicit"``: ``K_eff = m_a (1 - exp(-dt_g K_a / m_a)) / dt_g``.  For a
+     given gas velocity u this is the exact impulse of ``m dv/dt = K (u - v)`` over dt_g
+     (``m dv = m (1 - exp(-dt_g K/m)) (u - v)``), so a particle approaches but never
+     overshoots the gas velocity whatever its relaxation time ``m/K``.
+   * ``"explicit"``: ``K_eff = K`` (forward Euler; unstable for ``dt_g > 2 m/K``).
+3. Gas step with the drag implicit in the gas: ``drag_K = D(K_eff)/V_cell``,
+   ``drag_Up = D(K_eff v_a)/D(K_eff)`` (0 where D(K_eff) = 0), D = per-component face
+   deposition (:meth:`MappingPlan.deposit_faces`).  The gas momentum loses
+   ``dt_g sum_f K_f (u_f^{n+1} - U_p,f) V_cell = dt_g sum_a K_eff,a (I(u^{n+1})_a - v_a)``
+   (I = interpolation = D^T).
+4. Particle drag impulse ``J_a = dt_g K_eff,a (I(u^{n+1})_a - v_a)``: by the transpose
+   property the sum of the J_a is exactly (to round-off) what the gas lost in step 3.
+5. Pressure force, consistent with the gas's ``-eps_f grad p`` (eps_f the arithmetic face
+   mean of the cell porosity, boundary halos zero-gradient):  the gas momentum equation on
+   face f receives ``-eps_f g_f V_cell`` with ``g_f`` the face difference of ``p^{n+1}``
+   (the pressure after the projection; the predictor's ``p^n`` and the correction's
+   increment add up to it).  Writing ``eps_f = 1 - phi_f`` with ``phi_f = (phi_{i-1} +
+   phi_i)/2`` and ``phi_i = sum_a w_ai V_a / V_cell``, the solid part of that sum is
+   ``sum_f phi_f g_f V_cell = sum_a V_a I_c(G)_a`` with the *centre* field
+   ``G_i = (g_i + g_{i+1})/2`` (faces that the momentum equation updates only; a boundary
+   cell whose halo copies it counts its outer updated face twice, i.e. with weight 1).
+   The particle pressure force is therefore ``F^p_a = -V_a I_c(G)_a`` (trilinear from the
+   cell centres, the same weights as the porosity); then gas plus particles receive
+   ``-V_cell sum_f g_f`` in total, which telescopes to 0 on a periodic axis: the pressure
+   exchange conserves momentum exactly.  In the interior ``G`` is the central difference
+   ``(p_{i+1} - p_{i-1})/(2h)``, exact for linear p; in the cell next to a wall (whose
+   boundary face is not a gas unknown) G is half the gradient of the inner face, so the
+   particles there feel a reduced pressure force (the rest acts on the wall).  With
+   ``eps_floor`` active the clipped cells break this exactness (logged).
+6. ``system.ext_force = J/dt_g + F^p``, constant over the next N particle steps (the
+   velocity-Verlet kicks apply it for exactly N dt = dt_g).
+
+The gas is thus one interval ahead of the particles: after a coupling step at particle time
+t the gas sits at t + dt_g and the particles catch up during the interval.  The porosity
+change enters the gas continuity equation through ``set_porosity`` (eps^{n+1} - eps^n)/dt_g.
+
+What is conserved: the drag and pressure exchanges exactly (``last_exchange`` records both
+sides).  The gas solver's bounded advection form (see :mod:`cfddem.gas.momentum`) carries
+a term ``u (eps^{n+1}_f - 2 eps^n_f + eps^{n-1}_f)`` (a second time difference of the
+porosity) and the pressure solver's residual, so the *total* momentum of a closed periodic
+box is conserved to that level (1e-12 relative when the particles barely move, see
+tests/unit/test_exchange.py).
+
+References: Kloss et al. (2012) Prog. Comput. Fluid Dyn. 12:140 (CFDEM semi-implicit
+drag); Xiao & Sun (2011) Commun. Comput. Phys. 9:297 (implicit drag in CFD-DEM).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time as _time
+from dataclasses import dataclass
+
+import numpy as np
+
+from cfddem.coupling import drag as _drag
+from cfddem.coupling.mapping import MappingPlan
+from cfddem.errors import CaseError
+from cfddem.gas import (FreeSlip, GasSolver, Inlet, LidCrossWind, NoSlip, Periodic, PressureOutlet,
+                        StaggeredGrid)
+
+__all__ = ["CoupledGas", "CouplingStatus", "build_coupled_gas", "coupling_diagnostics", "column_gas"]
+
+_LOC = ("fcc", "cfc", "ccf")
+
+
+@dataclass
+class CouplingStatus:
+    """Failure of a coupling step (gas NaN, pressure solver, porosity): ``ok`` False and a
+    one-sentence ``message`` naming the cell and the quantity."""
+
+    ok: bool = False
+    flag: str | None = "gas"
+    index: int = -1
+    value: float = float("nan")
+    message: str = ""
+    steps_done: int = 0
+
+
+def _sl(d, s):
+    out = [slice(None)] * 3
+    out[d] = s
+    return tuple(out)
+
+
+class CoupledGas:
+    """Gas solver plus the momentum exchange with a ParticleSystem (see module docstring).
+
+    Parameters
+    ----------
+    system: the ParticleSystem (its ``ext_force`` is overwritten at every coupling step).
+    grid: :class:`StaggeredGrid`; bcs: dict side -> BC (see :mod:`cfddem.gas.boundaries`).
+    rho, mu: gas density and viscosity; closure: drag closure name (``drag.CLOSURES``).
+    coupling_interval: N particle steps per gas step.
+    drag_treatment: "implicit" or "explicit" (see module docstring).
+    gravity, omega, axis_point: the gas's body force and frame rotation (the particles have
+    their own, in the ParticleSystem).
+    periodic: per axis, whether it is periodic (default: from the bcs).
+    eps_min: porosity below which cells are reported; eps_floor: if set, the porosity
+    handed to the gas (and used by the closures) is max(eps, eps_floor), logged.
+    log: a logger (default ``logging.getLogger("cfddem")``); gas_kw: passed to GasSolver
+    (advection, tol, maxiter, ...).
+    """
+
+    def __init__(self, system, grid: StaggeredGrid, bcs: dict, *, rho: float, mu: float,
+                 closure: str = "beetstra", coupling_interval: int = 10, drag_treatment: str = "implicit",
+                 gravity=(0.0, 0.0, 0.0), omega=(0.0, 0.0, 0.0), axis_point=(0.0, 0.0, 0.0),
+                 periodic=None, log=None, eps_min: float = 0.3, eps_floor: float | None = None, **gas_kw):
+        if drag_treatment not in ("implicit", "explicit"):
+            raise CaseError("gas.drag_treatment", f"'implicit' or 'explicit', got {drag_treatment!r}")
+        if int(coupling_interval) < 1:
+            raise CaseError("gas.coupling_interval", f"must be >= 1, got {coupling_interval}")
+        if eps_floor is not None and not (0.0 < eps_floor < 1.0):
+            raise CaseError("gas.eps_floor", f"must lie in (0, 1), got {eps_floor}")
+        self.system = system
+        self.grid = grid
+        self.gas = GasSolver(grid, rho=rho, mu=mu, bcs=bcs, gravity=gravity, omega=omega,
+                             axis_point=axis_point, **gas_kw)
+        bc_per = tuple(bool(p) for p in self.gas.bc.periodic)
+        if periodic is not None and tuple(bool(p) for p in periodic) != bc_per:
+            raise CaseError("gas.periodic", f"{tuple(periodic)} does not match the boundary conditions {bc_per}")
+        self.periodic = bc_per
+        self.rho = float(rho)
+        self.mu = float(mu)
+        self.closure = closure
+        self._F = _drag.get_closure(closure)
+        self.N = int(coupling_interval)
+        self.drag_treatment = drag_treatment
+        self.eps_min = float(eps_min)
+        self.eps_floor = eps_floor
+        self.log = log if log is not None else logging.getLogger("cfddem")
+        self.phase = 0
+        self.n_couplings = 0
+        self._low_reports = 0
+        self._last = {"gas_pressure_iterations": 0.0, "gas_cfl": 0.0, "min_porosity": 1.0,
+                      "gas_max_divergence": 0.0, "drag_power": 0.0, "n_low_porosity_cells": 0.0,
+                      "n_clipped_cells": 0.0, "max_drag_force": 0.0}
+        self.last_exchange: dict = {}
+        # time average of the cell-centred gas velocity (write_measurements)
+        self._avg_sum = np.zeros(grid.shape + (3,))
+        self._avg_time = 0.0
+        # updated-face masks: which faces of each component the momentum equation updates
+        self._upd = []
+        for c in range(3):
+            lo, hi = self.gas.bc.face_range[c]
+            m = np.zeros(grid.shape[c] + 1, bool)
+            m[lo:hi] = True
+            self._upd.append(m)
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def dt_gas(self) -> float:
+        return self.N * float(self.system.dt)
+
+    # ------------------------------------------------------------------ time loop
+    def advance(self, n_steps: int, timings: dict | None = None):
+        """Advance the particles by ``n_steps`` steps, stepping the gas at every multiple of
+        the coupling interval (a phase counter carries over between calls).  Returns the
+        particle StepStatus, or a :class:`CouplingStatus` (ok False) on a gas failure."""
+        done = 0
+        st = None
+        n_steps = int(n_steps)
+        while done < n_steps:
+            if self.phase == 0:
+                t0 = _time.perf_counter()
+                fail = self.couple(timings)
+                if timings is not None:
+                    timings["coupling"] = timings.get("coupling", 0.0) + (_time.perf_counter() - t0
+                                                                          - self._gas_wall)
+                if fail is not None:
+                    fail.steps_done = done
+                    return fail
+            k = min(self.N - self.phase, n_steps - done)
+            st = self.system.step(k)
+            if not st.ok:
+                st.steps_done = done + st.steps_done
+                return st
+            self.phase = (self.phase + k) % self.N
+            done += k
+        if st is None:
+            from cfddem.particles.system import StepStatus
+
+            st = StepStatus(ok=True, steps_done=0)
+        st.steps_done = done
+        return st
+
+    def couple(self, timings: dict | None = None):
+        """One coupling step (module docstring, steps 1-6).  Returns None or a failure status."""
+        sys_, gas, grid = self.system, self.gas, self.grid
+        self._gas_wall = 0.0
+        n = sys_.n
+        pos = np.ascontiguousarray(sys_.pos)
+        vel = np.array(sys_.vel)
+        rad = np.array(sys_.radius)
+        mass = np.array(sys_.mass)
+        plan = MappingPlan(grid, pos, self.periodic)
+        vol = 4.0 / 3.0 * np.pi * rad**3
+        # --- 1. porosity ------------------------------------------------------------------
+        por = plan.porosity(rad, self.eps_min)
+        eps = por.eps
+        n_clip = 0
+        if por.n_low:
+            self._report_low(por)
+        if self.eps_floor is not None:
+            clip = eps < self.eps_floor
+            n_clip = int(np.count_nonzero(clip))
+            if n_clip:
+                eps = np.where(clip, self.eps_floor, eps)
+        elif por.n_negative or por.eps_min_found <= 0.0:
+            return CouplingStatus(
+                flag="porosity", value=por.eps_min_found,
+                message=(f"porosity {por.eps_min_found:.3g} <= 0 in gas cell {por.where} at t = {sys_.time:.6g} s: "
+                         f"more particle volume than the cell holds ({por.n_negative} cells); use larger gas "
+                         "cells (about 3 particle diameters or more) or set an eps_floor"))
+        gas.set_porosity(eps)
+        # --- 2. drag coefficients ---------------------------------------------------------
+        dtg = self.dt_gas
+        if n:
+            eps_a = np.clip(plan.interpolate(eps, "ccc"), 1e-12, 1.0)
+            u_a = plan.interpolate_faces(gas.u.interior, gas.v.interior, gas.w.interior)
+            d = 2.0 * rad
+            slip = np.sqrt(np.sum((u_a - vel) ** 2, axis=1))
+            re = eps_a * self.rho * slip * d / self.mu
+            K = 3.0 * np.pi * self.mu * d * eps_a * np.asarray(self._F(eps_a, re), dtype=float)
+            if self.drag_treatment == "implicit":
+                Keff = -mass * np.expm1(-dtg * K / mass) / dtg
+            else:
+                Keff = K
+            DK = plan.deposit_faces(np.repeat(Keff[:, None], 3, axis=1))
+            DKv = plan.deposit_faces(Keff[:, None] * vel)
+            vc = grid.cell_volume
+            drag_K = tuple(a / vc for a in DK)
+            drag_Up = tuple(np.divide(b, a, out=np.zeros_like(a), where=a > 0) for a, b in zip(DK, DKv))
+        else:
+            drag_K = drag_Up = None
+        # --- 3. gas step ------------------------------------------------------------------
+        t0 = _time.perf_counter()
+        info = gas.step(dtg, drag_K=drag_K, drag_Up=drag_Up)
+        self._gas_wall = _time.perf_counter() - t0
+        if timings is not None:
+            timings["gas"] = timings.get("gas", 0.0) + self._gas_wall
+        self._last.update(gas_pressure_iterations=float(info.pressure_iterations), gas_cfl=float(info.cfl),
+                          min_porosity=float(por.eps_min_found), gas_max_divergence=float(info.max_divergence),
+                          n_low_porosity_cells=float(por.n_low), n_clipped_cells=float(n_clip))
+        if not info.ok:
+            return CouplingStatus(flag="gas", message=f"gas step failed at t = {sys_.time:.6g} s: {info.message}")
+        self.n_couplings += 1
+        # --- 4.-6. forces on the particles -------------------------------------------------
+        if n:
+            u1 = plan.interpolate_faces(gas.u.interior, gas.v.interior, gas.w.interior)
+            Fd = Keff[:, None] * (u1 - vel)
+            G = self.centre_pressure_gradient()
+            Fp = np.empty((n, 3))
+            for c in range(3):
+                Fp[:, c] = -vol * plan.interpolate(G[c], "ccc")
+            sys_.ext_force[:] = Fd + Fp
+            self._last["drag_power"] = float(np.sum(Fd * (u1 - vel)))
+            self._last["max_drag_force"] = float(np.max(np.sqrt(np.sum(Fd**2, axis=1))))
+            # both sides of the exchange (momentum received), for conservation checks: the
+            # particle and gas entries of each pair must sum to zero
+            gas_drag = np.array([dtg * float(np.sum(drag_K[c] * (getattr(gas, "uvw"[c]).interior - drag_Up[c])
+                                                    * self._upd_mask(c))) * vc for c in range(3)])
+            self.last_exchange = {"particle_drag_impulse": dtg * Fd.sum(axis=0),
+                                  "gas_drag_impulse": -gas_drag,
+                                  "particle_pressure_impulse": dtg * Fp.sum(axis=0),
+                                  "gas_solid_pressure_impulse": self._solid_pressure_impulse(eps, dtg)}
+        else:
+            self._last["drag_power"] = 0.0
+            self._last["max_drag_force"] = 0.0
+        cc = gas.cell_centred_velocity()
+        self._avg_sum += cc * dtg
+        self._avg_time += dtg
+        if gas.max_stable_dt() < dtg and self.n_couplings % 1000 == 1:
+            self.log.warning("gas time step dt_g = %.3g s exceeds the gas's stable step %.3g s (CFL %.3g)",
+                             dtg, gas.max_stable_dt(), info.cfl)
+        return None
+
+    def _upd_mask(self, c):
+        m = self._upd[c]
+        shape = [1, 1, 1]
+        shape[c] = m.size
+        return m.reshape(shape)
+
+    def _face_gradients(self):
+        """g_f = (p_I - p_{I-1})/h on every face of each component (from the halo-filled p),
+        zero on faces that the momentum equation does not update."""
+        gas, grid = self.gas, self.grid
+        h = grid.halo
+        p = gas.p.data
+        out = []
+        for c in range(3):
+            n = grid.shape[c]
+            core = [slice(h, h + grid.shape[e]) for e in range(3)]
+            hi = list(core)
+            lo = list(core)
+            hi[c] = slice(h, h + n + 1)
+            lo[c] = slice(h - 1, h + n)
+            g = (p[tuple(hi)] - p[tuple(lo)]) / grid.spacing[c]
+            out.append(g * self._upd_mask(c))
+        return out
+
+    def centre_pressure_gradient(self):
+        """The centre field G (module docstring, step 5) for each component, shape (nx,ny,nz):
+        the transpose of the gas's face porosity weighting ``eps_f = (eps_{i-1} + eps_i)/2``."""
+        out = []
+        for c, g in enumerate(self._face_gradients()):
+            n = self.grid.shape[c]
+            if self.periodic[c]:
+                g = g.copy()
+                g[_sl(c, n)] = g[_sl(c, 0)]  # face n is face 0
+            G = 0.5 * (g[_sl(c, slice(0, n))] + g[_sl(c, slice(1, n + 1))])
+            if not self.periodic[c]:  # zero-gradient porosity halo: outer faces count fully
+                G[_sl(c, 0)] += 0.5 * g[_sl(c, 0)]
+                G[_sl(c, n - 1)] += 0.5 * g[_sl(c, n)]
+            out.append(G)
+        return out
+
+    def _solid_pressure_impulse(self, eps, dtg):
+        """Gas side of the pressure exchange: of the gas's pressure impulse
+        ``-dt_g sum_f eps_f g_f V_cell = -dt_g V_cell sum_f g_f + dt_g sum_f (1 - eps_f) g_f V_cell``
+        this returns the second (solid) part, over the updated faces, eps_f from the gas's own
+        (halo-filled) porosity; the first part telescopes to 0 on periodic axes."""
+        gas, grid = self.gas, self.grid
+        h = grid.halo
+        e = gas.eps.data
+        res = np.zeros(3)
+        for c, g in enumerate(self._face_gradients()):
+            n = grid.shape[c]
+            core = [slice(h, h + grid.shape[k]) for k in range(3)]
+            a = list(core)
+            b = list(core)
+            a[c] = slice(h - 1, h + n)
+            b[c] = slice(h, h + n + 1)
+            ef = 0.5 * (e[tuple(a)] + e[tuple(b)])
+            if self.periodic[c]:
+                g = g.copy()
+                g[_sl(c, n)] = 0.0
+            res[c] = dtg * grid.cell_volume * float(np.sum((1.0 - ef) * g))
+        return res  # the gas's share; the particles should receive minus this
+
+    def _report_low(self, por):
+        self._low_reports += 1
+        if self._low_reports <= 10 or self._low_reports % 100 == 0:
+            self.log.warning("porosity below %.2g in %d gas cells (minimum %.3g in cell %s, %d cells below 0) "
+                             "at t = %.6g s%s", self.eps_min, por.n_low, por.eps_min_found, por.where,
+                             por.n_negative, self.system.time,
+                             "" if self.eps_floor is None else f"; the gas uses max(eps, {self.eps_floor:g})")
+
+    # ------------------------------------------------------------------ output
+    def gas_momentum(self) -> np.ndarray:
+        """rho sum_f eps_f u_f V_cell over the faces the momentum equation updates [kg m/s]."""
+        gas, grid = self.gas, self.grid
+        h = grid.halo
+        e = gas.eps.data
+        out = np.zeros(3)
+        for c, f in enumerate((gas.u, gas.v, gas.w)):
+            n = grid.shape[c]
+            core = [slice(h, h + grid.shape[k]) for k in range(3)]
+            a = list(core)
+            b = list(core)
+            a[c] = slice(h - 1, h + n)
+            b[c] = slice(h, h + n + 1)
+            ef = 0.5 * (e[tuple(a)] + e[tuple(b)])
+            m = self._upd_mask(c)
+            out[c] = self.rho * grid.cell_volume * float(np.sum(ef * f.interior * m))
+        return out
+
+    def series_row(self) -> dict:
+        row = dict(self._last)
+        pg = self.gas_momentum()
+        pp = self.system.momentum() if self.system.n else np.zeros(3)
+        for i, ax in enumerate("xyz"):
+            row[f"gas_momentum_{ax}"] = float(pg[i])
+            row[f"particle_momentum_{ax}"] = float(pp[i])
+        row["gas_time"] = float(self.gas.time)
+        return row
+
+    def vtk_fields(self) -> dict:
+        g = self.grid
+        return dict(origin=tuple(g.origin), spacing=tuple(g.spacing), shape=tuple(g.shape),
+                    cell_data={"velocity": self.gas.cell_centred_velocity(),
+                               "pressure": np.array(self.gas.p.interior),
+                               "porosity": np.array(self.gas.eps.interior)})
+
+    def mean_velocity(self) -> np.ndarray:
+        """Time-averaged cell-centred gas velocity (nx, ny, nz, 3) since the start (or reset)."""
+        if self._avg_time <= 0:
+            return self.gas.cell_centred_velocity()
+        return self._avg_sum / self._avg_time
+
+    def reset_average(self) -> None:
+        self._avg_sum[:] = 0.0
+        self._avg_time = 0.0
+
+    def write_measurements(self, results_file) -> None:
+        """``/measurements/gas``: time-averaged cell-centred velocity (nx, ny, nz, 3) over all
+        coupling steps so far, its depth-mean ``top_view`` (nx, nz, 3) for the report, cell
+        centre coordinates, and the averaging time."""
+        g = self.grid
+        mv = self.mean_velocity()
+        results_file.write_measurements("gas", {
+            "mean_velocity": mv, "top_view_velocity": mv.mean(axis=1),
+            "x": g.centres(0), "y": g.centres(1), "z": g.centres(2),
+        }, {"averaging_time": float(self._avg_time), "closure": self.closure,
+            "drag_treatment": self.drag_treatment, "coupling_interval": self.N})
+
+    # ------------------------------------------------------------------ restart
+    def get_state(self) -> dict:
+        st = {k: v for k, v in self.gas.get_state().items() if v is not None}
+        return {"gas": st, "phase": np.int64(self.phase), "n_couplings": np.int64(self.n_couplings),
+                "ext_force": np.array(self.system.ext_force), "ext_ids": np.array(self.system.ids),
+                "avg_sum": self._avg_sum.copy(), "avg_time": float(self._avg_time),
+                "low_reports": np.int64(self._low_reports),
+                "last": {k: float(v) for k, v in self._last.items()}}
+
+    def set_state(self, d: dict) -> None:
+        gs = dict(d["gas"])
+        gs.setdefault("amg_reference_coefficients", None)
+        self.gas.set_state(gs)
+        self.phase = int(d["phase"])
+        self.n_couplings = int(d["n_couplings"])
+        self._low_reports = int(d.get("low_reports", 0))
+        self._avg_sum[...] = np.asarray(d["avg_sum"], float)
+        self._avg_time = float(d["avg_time"])
+        self._last.update({k: float(v) for k, v in d.get("last", {}).items()})
+        ids = np.asarray(d["ext_ids"], np.int64)
+        f = np.asarray(d["ext_force"], float).reshape(-1, 3)
+        cur = self.system.ids
+        if ids.shape == cur.shape and np.array_equal(ids, cur):
+            self.system.ext_force[:] = f
+        else:
+            order = np.argsort(ids)
+            k = np.searchsorted(ids[order], cur)
+            k = np.clip(k, 0, max(len(ids) - 1, 0))
+            found = (len(ids) > 0) & (ids[order][k] == cur) if len(ids) else np.zeros(len(cur), bool)
+            self.system.ext_force[:] = 0.0
+            self.system.ext_force[found] = f[order][k[found]]
+
+    # ------------------------------------------------------------------ diagnostics
+    def diagnostics(self) -> list[str]:
+        s = self.system
+        d = float(2 * s.radius.max()) if s.n else None
+        rho_p = float(s.mass[0] / (4.0 / 3.0 * np.pi * s.radius[0] ** 3)) if s.n else None
+        lines = _diag_lines(self.grid, d, rho_p, self.rho, self.mu, self.closure, float(s.dt), self.N,
+                            self.gas.max_stable_dt(), self.drag_treatment)
+        lines.append(f"gas CFL of the last step: {self._last['gas_cfl']:.3g}; min porosity: "
+                     f"{self._last['min_porosity']:.3g} ({int(self._last['n_low_porosity_cells'])} cells below "
+                     f"{self.eps_min:g})")
+        return lines
+
+
+def _diag_lines(grid, d, rho_p, rho, mu, closure, dt, N, gas_stable_dt, treatment, u_scale=None):
+    dtg = N * dt
+    lines = []
+    h = grid.spacing
+    lines.append(f"gas grid {grid.shape[0]} x {grid.shape[1]} x {grid.shape[2]} cells of "
+                 f"{h[0] * 1e3:.3g} x {h[1] * 1e3:.3g} x {h[2] * 1e3:.3g} mm; gas step dt_g = {N} x {dt:g} = {dtg:.3g} s "
+                 f"(drag {treatment})")
+    if d:
+        vp = math.pi * d**3 / 6.0
+        ratio = grid.cell_volume / vp
+        hmin = min(h)
+        lines.append(f"cell volume / particle volume = {ratio:.3g}; smallest cell side / d = {hmin / d:.3g}"
+                     + (" (WARNING: below 3, noisy porosity)" if hmin / d < 3 else ""))
+        tau0 = rho_p * d * d / (18.0 * mu)
+        try:
+            vt = _drag.terminal_velocity(rho_p, rho, d, mu, closure=closure)
+            re_t = rho * vt * d / mu
+            tau_t = float(_drag.relaxation_time(1.0, re_t, rho_p, d, mu, closure))
+            tau_d = float(_drag.relaxation_time(0.4, 0.4 * re_t, rho_p, d, mu, closure))
+        except CaseError:
+            vt, re_t, tau_t, tau_d = float("nan"), float("nan"), tau0, tau0
+        lines.append(f"particle relaxation time: Stokes {tau0:.3g} s, at the terminal velocity {vt:.3g} m/s "
+                     f"(Re {re_t:.3g}) {tau_t:.3g} s, in a packed bed (eps 0.4) {tau_d:.3g} s; "
+                     f"dt/tau = {dt / min(tau_t, tau_d):.3g}, dt_g/tau = {dtg / min(tau_t, tau_d):.3g}"
+                     + (" (explicit drag unstable: dt_g > 2 tau)" if treatment == "explicit"
+                        and dtg > 2 * min(tau_t, tau_d) else ""))
+    if u_scale:
+        cfl = dtg * sum(u_scale / hh for hh in h)
+        lines.append(f"gas CFL estimate at {u_scale:.3g} m/s: {cfl:.3g}; gas stable step {gas_stable_dt:.3g} s")
+    else:
+        lines.append(f"gas stable step {gas_stable_dt:.3g} s")
+    return lines
+
+
+# ---------------------------------------------------------------------------- chute case
+def _chute_setup(case):
+    from cfddem.particles.inlets import SluiceInlet
+    from cfddem.scene import frame_omega, gravity_vector
+
+    geo, gcfg = case.geometry, case.gas
+    nx, ny, nz = (int(v) for v in gcfg.cells)
+    z0, z1 = float(geo.z_start), float(case.exit.z)
+    grid = StaggeredGrid((nx, ny, nz), (float(geo.width), float(gcfg.height), z1 - z0), (0.0, 0.0, z0), halo=2)
+    g = np.asarray(gravity_vector(case), float)
+    om = np.asarray(frame_omega(case), float)
+    ap = tuple(float(v) for v in case.frame.axis_point)
+    vin = gcfg.inlet_velocity
+    if vin is None:
+        if case.inlet.type == "sluice":
+            dmax = max(case.particles.diameter, case.particles.diameter_max)
+            vin = SluiceInlet(width=geo.width, height=case.inlet.height, z=case.inlet.z, diameter=dmax,
+                              density=case.particles.density, mass_rate=case.inlet.mass_rate,
+                              gap=case.inlet.gap).velocity
+        else:
+            vin = 0.0
+    lid = {"crosswind": LidCrossWind(omega=tuple(om), axis_point=ap), "slip": FreeSlip(),
+           "wall": NoSlip()}[gcfg.lid]
+    rho = float(gcfg.density)
+    # outlet pressure hydrostatic across the outlet plane (zero for gas at rest)
+    pout = PressureOutlet(p=lambda x, y, z, _g=g, _r=rho: _r * (_g[0] * x + _g[1] * y))
+    bcs = {"x-": NoSlip(), "x+": NoSlip(), "y-": NoSlip(), "y+": lid, "z-": Inlet(speed=float(vin)), "z+": pout}
+    return grid, bcs, g, om, ap, float(vin)
+
+
+def build_coupled_gas(case, system, log=None) -> CoupledGas:
+    """The CoupledGas of a chute case with ``gas.enabled``: domain x in [0, width], y in
+    [0, gas.height], z in [z_start, exit.z], grid ``gas.cells``; no-slip x-, x+, y-; y+ per
+    ``gas.lid``; z- velocity inlet at ``gas.inlet_velocity`` (default the sluice feed velocity);
+    z+ pressure outlet (hydrostatic across the plane).  The gas starts with the inlet velocity
+    everywhere along z (divergence-free, compatible with inlet and outlet)."""
+    grid, bcs, g, om, ap, vin = _chute_setup(case)
+    gcfg = case.gas
+    cg = CoupledGas(system, grid, bcs, rho=gcfg.density, mu=gcfg.viscosity, closure=gcfg.drag,
+                    coupling_interval=gcfg.coupling_interval, drag_treatment=gcfg.drag_treatment,
+                    gravity=tuple(g), omega=tuple(om), axis_point=ap, log=log)
+    cg.gas.set_velocity(lambda x, y, z: (0.0 * x, 0.0 * x, vin + 0.0 * x))
+    cg.gas.set_pressure(lambda x, y, z: gcfg.density * (g[0] * x + g[1] * y + g[2] * (z - grid.origin[2] - grid.lengths[2])))
+    if log is not None:
+        for line in cg.diagnostics()[:-1]:
+            log.info("gas: %s", line)
+    return cg
+
+
+def coupling_diagnostics(case) -> list[str]:
+    """The coupling numbers of a chute case without running (for ``cfddem check``)."""
+    if not case.gas.enabled:
+        return ["gas: off"]
+    grid, bcs, g, om, ap, vin = _chute_setup(case)
+    gcfg = case.gas
+    d = max(case.particles.diameter, case.particles.diameter_max)
+    gas = GasSolver(grid, rho=gcfg.density, mu=gcfg.viscosity, bcs=bcs, gravity=tuple(g), omega=tuple(om),
+                    axis_point=ap)
+    gas.set_velocity(lambda x, y, z: (0.0 * x, 0.0 * x, vin + 0.0 * x))
+    # velocity scale: the inlet, and the lid cross-wind at the far corner of the domain
+    corners = np.array([[x, grid.lengths[1], z] for x in (0.0, grid.lengths[0])
+                        for z in (grid.origin[2], grid.origin[2] + grid.lengths[2])])
+    wind = float(np.max(np.linalg.norm(np.cross(om, corners - np.asarray(ap)), axis=1))) if np.any(om) else 0.0
+    u_scale = max(vin, wind, 1e-12)
+    lines = _diag_lines(grid, d, case.particles.density, gcfg.density, gcfg.viscosity, gcfg.drag,
+                        case.time.dt, gcfg.coupling_interval, gas.max_stable_dt(), gcfg.drag_treatment, u_scale)
+    lines.append(f"gas inlet velocity {vin:.4g} m/s; lid: {gcfg.lid} (max cross-wind {wind:.3g} m/s); "
+                 f"min porosity: computed at run time (cells below 0.3 are logged)")
+    return lines
+
+
+# ---------------------------------------------------------------------------- test helper
+def column_gas(system, *, lengths, cells, inlet_velocity, rho=1.2, mu=1.8e-5, gravity=(0.0, -9.81, 0.0),
+               origin=(0.0, 0.0, 0.0), periodic_xz=True, **kw) -> CoupledGas:
+    """A fluidisation column: gas fed from below through the whole y- side (a uniform velocity
+    inlet, i.e. an ideal distributor plate; the particles rest on their own floor wall, which
+    the gas passes through), pressure outlet p = 0 on y+, x and z periodic (or no-slip walls).
+    ``inlet_velocity`` (superficial, m/s) can be changed later with :func:`set_inlet_velocity`."""
+    side = (Periodic(), Periodic()) if periodic_xz else (NoSlip(), NoSlip())
+    bcs = {"x-": side[0], "x+": side[1], "z-": side[0], "z+": side[1],
+           "y-": Inlet(speed=float(inlet_velocity)), "y+": PressureOutlet(p=0.0)}
+    grid = StaggeredGrid(tuple(cells), tuple(lengths), tuple(origin), halo=2)
+    cg = CoupledGas(system, grid, bcs, rho=rho, mu=mu, gravity=gravity, **kw)
+    cg.gas.set_velocity(lambda x, y, z: (0.0 * x, float(inlet_velocity) + 0.0 * x, 0.0 * x))
+    return cg
+
+
+def set_inlet_velocity(cg: CoupledGas, side: str, speed: float) -> None:
+    """Change the speed of an :class:`Inlet` side of a CoupledGas (recomputes the boundary
+    values; the interior adjusts in the next projection)."""
+    bc = cg.gas.bc
+    old = bc.bcs[side]
+    if not isinstance(old, Inlet):
+        raise CaseError("gas.bcs", f"side {side} is not an inlet")
+    bc.bcs[side] = Inlet(speed=float(speed), tangential=old.tangential)
+    bc._precompute()
+    cg.gas.fill_halos()
