@@ -207,16 +207,16 @@ def test_rerun_resumes_an_unfinished_variant_from_its_checkpoint(tmp_path):
     variants = [{MU: 0.1, "checkpoint.interval": 0.004}]
     out = tmp_path / "sweep"
     first = S.run_sweep(BOX, variants, out, workers=1, threads=1, echo=None)[0]
-    assert first["status"] == "done" and first["resumed"] is False
+    assert first["status"] == "done" and first["resumed"] is False, first
     run = out / first["name"]
     ckpts = sorted((run / "checkpoints").glob("*.h5"))
-    assert len(ckpts) == 2  # t = 4 ms and 8 ms (keep = 2)
+    assert len(ckpts) == 2, ckpts  # t = 4 ms and 8 ms (keep = 2)
     ckpts[-1].unlink()  # the crash came before the 8 ms checkpoint
     meta = json.loads((run / "run.json").read_text())
     (run / "run.json").write_text(json.dumps(dict(meta, status="running")))
     lines = []
     again = S.run_sweep(BOX, variants, out, workers=1, threads=1, echo=lines.append)[0]
-    assert again["status"] == "done" and again["resumed"] is True
+    assert again["status"] == "done" and again["resumed"] is True, (again, lines)
     assert any("(resumed)" in s for s in lines)
     assert "resuming from" in (run / "run.log").read_text()
     assert again["steps"] == 1000
