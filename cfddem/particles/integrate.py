@@ -111,7 +111,7 @@ def pair_forces(npairs, pi, pj, pos, vel, omg, radius, mass, inertia, params, pe
     """Per-pair contact force on the first particle a (pf), torques on a (pta) and b (ptb);
     updates the tangential history (zero when not touching).  Returns the max overlap ratio
     d_n / min(R_a, R_b)."""
-    mur = params[P_MUR]
+    mur = params[0, P_MUR]
     ovmax = 0.0
     for k in prange(npairs):
         a = pi[k]
@@ -147,7 +147,7 @@ def pair_forces(npairs, pi, pj, pos, vel, omg, radius, mass, inertia, params, pe
         vy = vel[a, 1] - vel[b, 1] + sz * nx - sx * nz
         vz = vel[a, 2] - vel[b, 2] + sx * ny - sy * nx
         fx, fy, fz, tx, ty, tz, hx, hy, hz, fnabs = pair_law(
-            params, meff, ra * rb / rs, dn, nx, ny, nz, vx, vy, vz,
+            params, 0, meff, ra * rb / rs, dn, nx, ny, nz, vx, vy, vz,
             hist[k, 0], hist[k, 1], hist[k, 2], dt_hist)
         hist[k, 0] = hx
         hist[k, 1] = hy
@@ -181,7 +181,7 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
                       pf, pta, ptb, first_start, second_start, second_list,
                       wgeom, wref, wpar, nw, whist, won, wfw, wtw, wfn,
                       gx, gy, gz, omx, omy, omz, cax, cay, caz,
-                      dt, dt_hist, kick, rotating, Rv, Rw):
+                      dt, dt_hist, kick, rotating, Rv, Rw, drift_next, periodic_len, plo, ref):
     """Sum pair forces per particle (fixed order), add walls, gravity, centrifugal force, store
     F and T, and (if ``kick``) do the closing half kick.
 
@@ -190,11 +190,17 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
     contact is T_r = -I w'/dt if |I w'/dt| <= mu_r R |F_n| (the spin stops exactly: static rolling
     resistance) else -mu_r R |F_n| w'/|w'|.  It never reverses the spin within the step.
 
-    Returns (count of particles with non-finite position/velocity/spin, max wall overlap ratio).
+    With ``drift_next`` the opening half kick and the drift of the *next* step follow at once
+    (the same operations as :func:`kick_drift`, so results do not depend on the fusion; it
+    saves one pass over the particles and one kernel launch per step).
+
+    Returns (count of particles with non-finite position/velocity/spin, max wall overlap ratio,
+    max |r - r_ref|^2 after the fused drift or 0).
     """
     h = 0.5 * dt
     bad = 0
     ovmax = 0.0
+    m2 = 0.0
     for i in prange(n):
         fx = 0.0
         fy = 0.0
@@ -231,7 +237,7 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
         wz = omg[i, 2]
         anyroll = False
         for w in range(nw):
-            ov, nx, ny, nz, qx, qy, qz = wall_contact(wgeom[w], x, y, z, r)
+            ov, nx, ny, nz, qx, qy, qz = wall_contact(wgeom, w, x, y, z, r)
             if ov > 0.0:
                 # n_ab from the particle (a) towards the wall (b)
                 ax_ = -nx
@@ -244,7 +250,7 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
                 rvy = vy - wgeom[w, 17] + sz * ax_ - sx * az_
                 rvz = vz - wgeom[w, 18] + sx * ay_ - sy * ax_
                 cfx, cfy, cfz, ctx, cty, ctz, hx, hy, hz, fnabs = pair_law(
-                    wpar[w], m, r, ov, ax_, ay_, az_, rvx, rvy, rvz,
+                    wpar, w, m, r, ov, ax_, ay_, az_, rvx, rvy, rvz,
                     whist[i, w, 0], whist[i, w, 1], whist[i, w, 2], dt_hist)
                 whist[i, w, 0] = hx
                 whist[i, w, 1] = hy
@@ -342,7 +348,40 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
               and math.isfinite(wy) and math.isfinite(wz))
         if not ok:
             bad += 1
-    return bad, ovmax
+        d2 = 0.0
+        if drift_next:
+            im2 = 1.0 / m
+            ii2 = 1.0 / inert
+            ux, uy, uz = _half_kick(vx, vy, vz, (fx + ext_f[i, 0]) * im2, (fy + ext_f[i, 1]) * im2,
+                                    (fz + ext_f[i, 2]) * im2, h, rotating, Rv)
+            sx2, sy2, sz2 = _half_kick(wx, wy, wz, (tx + ext_t[i, 0]) * ii2, (ty + ext_t[i, 1]) * ii2,
+                                       (tz + ext_t[i, 2]) * ii2, h, rotating, Rw)
+            vel[i, 0] = ux
+            vel[i, 1] = uy
+            vel[i, 2] = uz
+            omg[i, 0] = sx2
+            omg[i, 1] = sy2
+            omg[i, 2] = sz2
+            xn = x + dt * ux
+            yn = y + dt * uy
+            zn = z + dt * uz
+            if periodic_len[0] > 0.0:
+                xn -= periodic_len[0] * math.floor((xn - plo[0]) / periodic_len[0])
+            if periodic_len[1] > 0.0:
+                yn -= periodic_len[1] * math.floor((yn - plo[1]) / periodic_len[1])
+            if periodic_len[2] > 0.0:
+                zn -= periodic_len[2] * math.floor((zn - plo[2]) / periodic_len[2])
+            pos[i, 0] = xn
+            pos[i, 1] = yn
+            pos[i, 2] = zn
+            # read back from memory: keeps the reduction variable's definition chain short
+            # (numba's parfor reduction analysis fails on the long += chains of fx otherwise)
+            ex = _min_image(pos[i, 0] - ref[i, 0], periodic_len[0])
+            ey = _min_image(pos[i, 1] - ref[i, 1], periodic_len[1])
+            ez = _min_image(pos[i, 2] - ref[i, 2], periodic_len[2])
+            d2 = ex * ex + ey * ey + ez * ez
+        m2 = max(m2, d2)
+    return bad, ovmax, m2
 
 
 @kernel
@@ -373,7 +412,7 @@ def worst_overlap(npairs, pi, pj, pos, radius, periodic_len, n, wgeom, nw):
             who = a if radius[a] <= radius[b] else b
     for i in range(n):
         for w in range(nw):
-            ov, nx, ny, nz, qx, qy, qz = wall_contact(wgeom[w], pos[i, 0], pos[i, 1], pos[i, 2], radius[i])
+            ov, nx, ny, nz, qx, qy, qz = wall_contact(wgeom, w, pos[i, 0], pos[i, 1], pos[i, 2], radius[i])
             if ov > 0.0 and ov / radius[i] > best:
                 best = ov / radius[i]
                 who = i
@@ -397,7 +436,7 @@ def elastic_energy(npairs, pi, pj, pos, radius, periodic_len, hist, kn_pp, kt_pp
             e += 0.5 * kt_pp * (hist[k, 0] ** 2 + hist[k, 1] ** 2 + hist[k, 2] ** 2)
     for i in range(n):
         for w in range(nw):
-            ov, nx, ny, nz, qx, qy, qz = wall_contact(wgeom[w], pos[i, 0], pos[i, 1], pos[i, 2], radius[i])
+            ov, nx, ny, nz, qx, qy, qz = wall_contact(wgeom, w, pos[i, 0], pos[i, 1], pos[i, 2], radius[i])
             if ov > 0.0:
                 e += 0.5 * wkn[w] * ov * ov
                 e += 0.5 * wkt[w] * (whist[i, w, 0] ** 2 + whist[i, w, 1] ** 2 + whist[i, w, 2] ** 2)

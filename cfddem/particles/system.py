@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from cfddem.errors import CaseError
@@ -68,7 +69,7 @@ class ParticleSystem:
         self.axis_point = np.asarray(axis_point, float).reshape(3)
         self.max_overlap_ratio_limit = float(max_overlap_ratio)
         self._skin_user = skin
-        self._pp_params = pp.params()
+        self._pp_params = pp.params().reshape(1, -1)
         self._wgeom, self._wref, self._wpar = pack_walls(self.walls)
         self.nw = len(self.walls)
         self._plen = np.zeros(3)
@@ -102,6 +103,9 @@ class ParticleSystem:
         self._need_rebuild = True
         self._forces_stale = True
         self._last_ov = 0.0
+        # >= 0: the opening half kick and drift of the next step are already done (fused into the
+        # previous step's gather; only left pending when a step() call stops on a bad flag)
+        self._pending_m2 = -1.0
         self.n_rebuilds = 0
         self._fw = np.zeros((max(self.nw, 1), 3))
         self._tw = np.zeros((max(self.nw, 1), 3))
@@ -229,6 +233,9 @@ class ParticleSystem:
             it.overlap_check(self._pos, self._radius, self.n, pos, rad, m, self._plen, out)
         return out
 
+    def _serial(self, n: int) -> bool:
+        return n < self.serial_below or numba.get_num_threads() == 1
+
     # ------------------------------------------------------------------ neighbour list
     def _rebuild(self):
         n = self.n
@@ -240,7 +247,7 @@ class ParticleSystem:
                 raise CaseError("periodic", f"axis {a}: periodic length {self._plen[a]:g} m is "
                                 f"shorter than twice the neighbour cutoff 2*(2 R_max + skin) = {2 * cut:g} m")
         lo, size, nc = nb.cell_grid(self._pos, n, rmax, skin, self._plo, self._plo + self._plen,
-                                    self._periodic, serial=n < self.serial_below)
+                                    self._periodic, serial=self._serial(n))
         ncell = int(nc[0] * nc[1] * nc[2])
         cell_of = np.empty(n, np.int64)
         order = np.empty(n, np.int64)
@@ -259,7 +266,7 @@ class ParticleSystem:
             cur.update(first_start=np.zeros(self._cap + 1, np.int64),
                        second_start=np.zeros(self._cap + 1, np.int64),
                        counts=np.zeros(self._cap, np.int64))
-        ser = n < self.serial_below
+        ser = self._serial(n)
         (nb.pair_count_s if ser else nb.pair_count)(self._pos, self._radius, n, skin, lo, size, nc, self._plen, cell_start,
                       cur["counts"])
         need = nb.prefix_sum(cur["counts"], n, cur["first_start"])
@@ -287,21 +294,24 @@ class ParticleSystem:
         self.n_rebuilds += 1
 
     # ------------------------------------------------------------------ stepping
-    def _forces(self, kick: bool, dt_hist: float):
+    def _forces(self, kick: bool, dt_hist: float, drift_next: bool = False):
         cur = self._cur
-        ser = self.n < self.serial_below
+        ser = self._serial(self.n)
         ov_pp = (it.pair_forces_s if ser else it.pair_forces)(self._npairs, cur["pi"], cur["pj"], self._pos, self._vel, self._omega,
                                self._radius, self._mass, self._inertia, self._pp_params, self._plen,
                                cur["hist"], cur["pf"], cur["pta"], cur["ptb"], self.dt, dt_hist)
         g, om, ap = self.gravity, self.frame_omega, self.axis_point
-        bad, ov_w = (it.gather_walls_kick_s if ser else it.gather_walls_kick)(
+        drift_next = drift_next and ov_pp <= self.max_overlap_ratio_limit
+        bad, ov_w, m2 = (it.gather_walls_kick_s if ser else it.gather_walls_kick)(
             self.n, self._pos, self._vel, self._omega, self._force, self._torque, self._radius,
             self._mass, self._inertia, self._ext_force, self._ext_torque, cur["pf"], cur["pta"],
             cur["ptb"], cur["first_start"], cur["second_start"], cur["second_list"],
             self._wgeom, self._wref, self._wpar, self.nw, self._whist, self._won, self._wfw,
             self._wtw, self._wfn, g[0], g[1], g[2], om[0], om[1], om[2], ap[0], ap[1], ap[2],
-            self.dt, dt_hist, kick, self._rotating, self._Rv, self._Rw)
+            self.dt, dt_hist, kick, self._rotating, self._Rv, self._Rw, drift_next, self._plen,
+            self._plo, self._ref)
         self._last_ov = max(ov_pp, ov_w)
+        self._pending_m2 = m2 if drift_next else -1.0
         return bad
 
     def _refresh(self):
@@ -319,7 +329,13 @@ class ParticleSystem:
         return None
 
     def step(self, n_steps: int = 1) -> StepStatus:
-        """Advance ``n_steps`` steps of velocity Verlet; stops early on a bad flag."""
+        """Advance ``n_steps`` steps of velocity Verlet; stops early on a bad flag.
+
+        Within one call the closing half kick of a step and the opening half kick + drift of the
+        next are done in one pass (same arithmetic as separate passes).  After a "nan" or a wall
+        "overlap" flag the positions may already hold the next step's drift (the state of a
+        failed run is for diagnosis only).
+        """
         if self.n == 0:
             self.time += n_steps * self.dt
             self.step_count += n_steps
@@ -330,10 +346,15 @@ class ParticleSystem:
                 return st
         dt = self.dt
         for s in range(n_steps):
-            kd = it.kick_drift_s if self.n < self.serial_below else it.kick_drift
-            m2 = kd(self.n, self._pos, self._vel, self._omega, self._force, self._torque,
-                               self._mass, self._inertia, self._ext_force, self._ext_torque, dt,
-                               self._rotating, self._Rv, self._Rw, self._plen, self._plo, self._ref)
+            if self._pending_m2 >= 0.0:
+                # the opening kick + drift of this step were fused into the previous gather
+                m2 = self._pending_m2
+                self._pending_m2 = -1.0
+            else:
+                kd = it.kick_drift_s if self._serial(self.n) else it.kick_drift
+                m2 = kd(self.n, self._pos, self._vel, self._omega, self._force, self._torque,
+                        self._mass, self._inertia, self._ext_force, self._ext_torque, dt,
+                        self._rotating, self._Rv, self._Rw, self._plen, self._plo, self._ref)
             if m2 > (0.5 * self._skin_built) ** 2 or self._need_rebuild or not math.isfinite(m2):
                 try:
                     self._rebuild()
@@ -341,7 +362,7 @@ class ParticleSystem:
                     return self._fail("overflow_unrecoverable", -1, float("nan"),
                                       f"step {self.step_count + 1}: neighbour list could not grow ({exc})",
                                       s)
-            bad = self._forces(kick=True, dt_hist=dt)
+            bad = self._forces(kick=True, dt_hist=dt, drift_next=s < n_steps - 1)
             self.time += dt
             self.step_count += 1
             if bad:
@@ -399,8 +420,8 @@ class ParticleSystem:
             self._rebuild()
         cur = self._cur
         return float(it.elastic_energy(self._npairs, cur["pi"], cur["pj"], self._pos, self._radius,
-                                       self._plen, cur["hist"], self._pp_params[P_KN],
-                                       self._pp_params[P_KT], self.n, self._wgeom, self.nw,
+                                       self._plen, cur["hist"], self._pp_params[0, P_KN],
+                                       self._pp_params[0, P_KT], self.n, self._wgeom, self.nw,
                                        np.ascontiguousarray(self._wpar[:, P_KN]),
                                        np.ascontiguousarray(self._wpar[:, P_KT]), self._whist))
 
@@ -434,7 +455,7 @@ class ParticleSystem:
         st: dict = dict(n=n, time=self.time, step_count=self.step_count, next_id=self._next_id,
                         npairs=self._npairs, n_built=self._n_built, skin_built=self._skin_built,
                         need_rebuild=int(self._need_rebuild), forces_stale=int(self._forces_stale),
-                        last_ov=self._last_ov)
+                        last_ov=self._last_ov, pending_m2=self._pending_m2)
         for name in _PARTICLE_ARRAYS + _WALL_ARRAYS:
             st["p_" + name] = getattr(self, "_" + name)[:n].copy()
         cur = self._cur
@@ -470,6 +491,7 @@ class ParticleSystem:
         self._need_rebuild = bool(state["need_rebuild"])
         self._forces_stale = bool(state["forces_stale"])
         self._last_ov = float(state["last_ov"])
+        self._pending_m2 = float(state["pending_m2"])
         self.time = float(state["time"])
         self.step_count = int(state["step_count"])
         self._next_id = int(state["next_id"])

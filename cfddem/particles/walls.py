@@ -118,17 +118,18 @@ def pack_walls(walls: list[Wall]):
 
 
 @kernel(inline="always")
-def wall_contact(g, x, y, z, r):
-    """Contact of a sphere (centre x, y, z, radius r) with wall geometry row ``g``.
+def wall_contact(G, w, x, y, z, r):
+    """Contact of a sphere (centre x, y, z, radius r) with wall ``w`` of the geometry table ``G``
+    (rows indexed in place: no array views inside parallel loops).
 
     Returns (overlap, nx, ny, nz, qx, qy, qz): overlap > 0 means contact, n the unit normal from
     the wall towards the sphere centre, q the contact point on the wall.
     """
-    kind = g[0]
-    px = x - g[1]
-    py = y - g[2]
-    pz = z - g[3]
-    nx, ny, nz = g[4], g[5], g[6]
+    kind = G[w, 0]
+    px = x - G[w, 1]
+    py = y - G[w, 2]
+    pz = z - G[w, 3]
+    nx, ny, nz = G[w, 4], G[w, 5], G[w, 6]
     h = px * nx + py * ny + pz * nz
     if kind == 0.0:
         if h <= -r or h >= r:
@@ -137,15 +138,15 @@ def wall_contact(g, x, y, z, r):
     # rectangle
     if h >= r or h <= -r:
         return -1.0, nx, ny, nz, 0.0, 0.0, 0.0
-    u1 = px * g[7] + py * g[8] + pz * g[9]
-    u2 = px * g[10] + py * g[11] + pz * g[12]
-    h1 = g[13]
-    h2 = g[14]
+    u1 = px * G[w, 7] + py * G[w, 8] + pz * G[w, 9]
+    u2 = px * G[w, 10] + py * G[w, 11] + pz * G[w, 12]
+    h1 = G[w, 13]
+    h2 = G[w, 14]
     c1 = min(max(u1, -h1), h1)
     c2 = min(max(u2, -h2), h2)
-    qx = g[1] + c1 * g[7] + c2 * g[10]
-    qy = g[2] + c1 * g[8] + c2 * g[11]
-    qz = g[3] + c1 * g[9] + c2 * g[12]
+    qx = G[w, 1] + c1 * G[w, 7] + c2 * G[w, 10]
+    qy = G[w, 2] + c1 * G[w, 8] + c2 * G[w, 11]
+    qz = G[w, 3] + c1 * G[w, 9] + c2 * G[w, 12]
     if c1 == u1 and c2 == u2:
         return r - h, nx, ny, nz, qx, qy, qz
     if h < 0.0:
@@ -161,5 +162,6 @@ def wall_contact(g, x, y, z, r):
 
 @kernel
 def wall_contact_py(g, x, r):
-    """Test helper: :func:`wall_contact` for one sphere, returning a tuple."""
-    return wall_contact(g, x[0], x[1], x[2], r)
+    """Test helper: :func:`wall_contact` for one sphere and one geometry row, returning a tuple."""
+    G = g.reshape(1, g.size)
+    return wall_contact(G, 0, x[0], x[1], x[2], r)
