@@ -14,7 +14,6 @@ from __future__ import annotations
 import csv
 import json
 import os
-import shutil
 import subprocess
 import sys
 import time
@@ -135,9 +134,9 @@ def dask_scheduler(tmp_path):
     """A separately started ``dask scheduler`` and one ``dask worker`` (127.0.0.1, one thread,
     NUMBA_NUM_THREADS=1), killed at the end whatever happens; both exit on their own if
     orphaned (scheduler idle timeout, worker death timeout)."""
-    exe = shutil.which("dask")
-    if exe is None:
-        pytest.skip("no dask command")
+    # `dask scheduler` / `dask worker`, run with this interpreter (the same environment)
+    scheduler_cmd = [sys.executable, "-m", "distributed.cli.dask_scheduler"]
+    worker_cmd = [sys.executable, "-m", "distributed.cli.dask_worker"]
     sched_file = tmp_path / "scheduler.json"
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""),
                NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1")
@@ -145,7 +144,7 @@ def dask_scheduler(tmp_path):
     procs = []
     try:
         procs.append(subprocess.Popen(
-            [exe, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard", "--scheduler-file",
+            [*scheduler_cmd, "--host", "127.0.0.1", "--port", "0", "--no-dashboard", "--scheduler-file",
              str(sched_file), "--idle-timeout", "300"], stdout=logs[0], stderr=subprocess.STDOUT, env=env,
             cwd=tmp_path))
         t_end = time.monotonic() + 60
@@ -158,7 +157,7 @@ def dask_scheduler(tmp_path):
         address = json.loads(sched_file.read_text())["address"]
         assert address.startswith("tcp://127.0.0.1:")
         procs.append(subprocess.Popen(
-            [exe, "worker", address, "--nthreads", "1", "--nworkers", "1", "--host", "127.0.0.1", "--no-dashboard",
+            [*worker_cmd, address, "--nthreads", "1", "--nworkers", "1", "--host", "127.0.0.1", "--no-dashboard",
              "--death-timeout", "60", "--local-directory", str(tmp_path / "worker")],
             stdout=logs[1], stderr=subprocess.STDOUT, env=env, cwd=tmp_path))
         from distributed import Client

@@ -223,6 +223,15 @@ def test_run_sweep_from_args_exit_codes_and_bad_arguments(tmp_path, capsys):
     args = p.parse_args(["sweep", str(BOX), "--vary", "contact.particle_wall.mu=-1,-2", "--out", str(tmp_path / "s")])
     assert S.run_sweep_from_args(args) == 3  # every variant failed validation; nothing ran
     assert "2 of 2 variant(s) failed" in capsys.readouterr().err
+    vf = tmp_path / "v.csv"
+    vf.write_text("contact.particle_wall.mu\n-1\n")
+    args = p.parse_args(["sweep", str(BOX), "--variants", str(vf), "--vary", "time.end_time=0.01,0.02",
+                         "--out", str(tmp_path / "f")])
+    assert S.run_sweep_from_args(args) == 3
+    with (tmp_path / "f" / "summary.csv").open() as f:
+        got = list(csv.DictReader(f))
+    assert [(g["contact.particle_wall.mu"], g["time.end_time"], g["status"]) for g in got] == \
+        [("-1", "0.01", "failed"), ("-1", "0.02", "failed")]
     with pytest.raises(CaseError, match="--workers"):
         S.run_sweep(BOX, [{"time.end_time": 0.01}], tmp_path / "t", workers=0, echo=None)
     assert S.main([str(BOX), "--vary", "nonsense"]) == 2
