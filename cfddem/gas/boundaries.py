@@ -247,6 +247,11 @@ class BoundarySet:
             for c in range(3):
                 self._fill_component(comps[c], c, d)
 
+    def fill_component(self, a: np.ndarray, c: int) -> None:
+        """Fill the halos (and prescribed boundary faces) of velocity component c only."""
+        for d in range(3):
+            self._fill_component(a, c, d)
+
     def _fill_component(self, a: np.ndarray, c: int, d: int) -> None:
         g = self.grid.halo
         n = self.grid.shape[d]

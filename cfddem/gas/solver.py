@@ -32,11 +32,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse.linalg as spla
 
 from cfddem.errors import CaseError
 from cfddem.gas.boundaries import BoundarySet
 from cfddem.gas.grid import Field, StaggeredGrid
-from cfddem.gas.momentum import momentum_rhs
+from cfddem.gas.momentum import momentum_rhs, viscous_laplacian
 from cfddem.gas.operators import porous_divergence_kernel
 from cfddem.gas.pressure import PressureSolver
 
@@ -56,6 +57,7 @@ class GasStepInfo:
     message: str = ""
     amg_rebuilt: bool = False
     compatibility: float = 0.0
+    viscous_iterations: int = 0
 
 
 def _shift(sl: tuple, d: int, by: int) -> tuple:
@@ -78,16 +80,23 @@ class GasSolver:
     tol, maxiter: pressure solver tolerance (relative residual) and iteration limit.
     rebuild_threshold: relative coefficient change that triggers an AMG rebuild.
     cfl_max: advective Courant number used by :meth:`max_stable_dt`.
+    viscosity: "explicit" (forward Euler, viscous step limit) or "implicit" (semi-implicit:
+    backward Euler for the Laplacian part of the stress divergence, the cross-derivative
+    remainder explicit; solved per component by Jacobi-preconditioned CG to
+    ``viscous_tol``).
     """
 
     def __init__(self, grid: StaggeredGrid, *, rho: float = 1.2, mu: float = 1.8e-5, bcs: dict,
                  gravity=(0.0, 0.0, 0.0), omega=(0.0, 0.0, 0.0), axis_point=(0.0, 0.0, 0.0),
                  advection: str = "tvd", tol: float = 1e-8, maxiter: int = 200, lambda_bulk: float = 0.0,
-                 rebuild_threshold: float = 0.05, cfl_max: float = 0.5):
+                 rebuild_threshold: float = 0.05, cfl_max: float = 0.5, viscosity: str = "explicit",
+                 viscous_tol: float = 1e-10, viscous_maxiter: int = 500):
         if rho <= 0:
             raise CaseError("gas.rho", f"must be positive, got {rho}")
         if mu < 0:
             raise CaseError("gas.mu", f"must be non-negative, got {mu}")
+        if viscosity not in ("explicit", "implicit"):
+            raise CaseError("gas.viscosity", f"'explicit' or 'implicit', got {viscosity!r}")
         if advection not in ("tvd", "central"):
             raise CaseError("gas.advection", f"'tvd' or 'central', got {advection!r}")
         self.grid = grid
@@ -104,6 +113,9 @@ class GasSolver:
         self.advection = advection
         self._scheme = 1 if advection == "tvd" else 0
         self.cfl_max = float(cfl_max)
+        self.viscosity = viscosity
+        self.viscous_tol = float(viscous_tol)
+        self.viscous_maxiter = int(viscous_maxiter)
         self.u, self.v, self.w = (grid.zeros(loc) for loc in _LOC)
         self.p = grid.zeros("ccc")
         self.eps = Field(grid, "ccc", np.ones(grid.array_shape("ccc")))
@@ -113,6 +125,8 @@ class GasSolver:
                                       rebuild_threshold=rebuild_threshold)
         self._phi = np.zeros(grid.shape)
         self._rhs = [np.zeros(grid.array_shape(loc)) for loc in _LOC]
+        self._work = [np.zeros(grid.array_shape(loc)) for loc in _LOC]
+        self._lout = [np.zeros(grid.array_shape(loc)) for loc in _LOC]
         self.time = 0.0
         self.step_count = 0
         self._last_dt = None
@@ -187,6 +201,7 @@ class GasSolver:
         drag_Up [m/s]: implicit drag ``-K (u - U_p)``; each a tuple of three interior face
         arrays of shapes (nx+1,ny,nz), (nx,ny+1,nz), (nx,ny,nz+1)."""
         dt = float(dt)
+        self._visc_fail = ""
         if not dt > 0:
             raise CaseError("gas.dt", f"must be positive, got {dt}")
         grid, g, rho = self.grid, self.grid.halo, self.rho
@@ -208,6 +223,7 @@ class GasSolver:
                          omega=self.omega, gravity=self.gravity, axis_point=self.axis_point,
                          face_range=(lo, hi), out=self._rhs[c])
         coefs, ratios, new = [], [], []
+        viscous_iters = 0
         for c in range(3):
             lo, hi = self.bc.face_range[c]
             h = grid.spacing[c]
@@ -238,7 +254,12 @@ class GasSolver:
             if K is not None:
                 numer += dt * K[c][isl] * Up[c][isl] / rho
             den = denom_all[isl] if K is not None else ef
-            new.append((sl, isl, numer / den))
+            if self.viscosity == "implicit" and self.nu > 0:
+                val, it = self._implicit_viscous(c, sl, numer, den, eo, dt, (lo, hi))
+                viscous_iters += it
+            else:
+                val = numer / den
+            new.append((sl, isl, val))
         for c in range(3):
             sl, isl, val = new[c]
             vel[c][sl] = val
@@ -284,12 +305,54 @@ class GasSolver:
         bad = self._first_nonfinite()
         if bad:
             ok, msg = False, bad
+        elif self._visc_fail:
+            ok, msg = False, self._visc_fail
         elif not sinfo.converged:
             ok = False
             msg = (f"pressure solver did not converge: relative residual {sinfo.residual:.3e} after "
                    f"{sinfo.iterations} iterations (tol {self.psolver.tol:.1e})")
         return GasStepInfo(sinfo.iterations, sinfo.residual, cfl, self._last_div, ok, msg,
-                           sinfo.rebuilt, sinfo.compatibility)
+                           sinfo.rebuilt, sinfo.compatibility, viscous_iters)
+
+    def _implicit_viscous(self, c, sl, numer, den, eo, dt, face_range):
+        """Solve ``den u* - dt L(u*) = numer - dt L(u^n)`` for component c on the updated
+        faces (L: :func:`cfddem.gas.momentum.viscous_laplacian`, with the boundary halos as
+        an affine function of u*).  The operator is symmetric positive definite."""
+        grid = self.grid
+        work, lout = self._work[c], self._lout[c]
+        cn = 2.0 + self.lam_ratio
+        kw = dict(nu=self.nu, cn=cn, face_range=face_range)
+        vel = self.velocity[c].data
+        viscous_laplacian(c, vel, eo, grid, out=lout, **kw)  # L(u^n), halos of u^n filled
+        b = numer - dt * lout[sl]
+        work[...] = 0.0
+        self.bc.fill_component(work, c)
+        viscous_laplacian(c, work, eo, grid, out=lout, **kw)
+        lbc = lout[sl].copy()  # affine (boundary-value) part of L
+        shape = lbc.shape
+        b = (b + dt * lbc).ravel()
+
+        def apply(x):
+            work[sl] = x.reshape(shape)
+            self.bc.fill_component(work, c)
+            viscous_laplacian(c, work, eo, grid, out=lout, **kw)
+            return (den * work[sl] - dt * (lout[sl] - lbc)).ravel()
+
+        h = grid.spacing
+        diag = (den + dt * self.nu * den * 2.0 * (cn / h[c] ** 2 + sum(1.0 / h[d] ** 2 for d in range(3) if d != c))).ravel()
+        n = diag.size
+        A = spla.LinearOperator((n, n), matvec=apply, dtype=float)
+        M = spla.LinearOperator((n, n), matvec=lambda r: r / diag, dtype=float)
+        count = [0]
+
+        def cb(_):
+            count[0] += 1
+
+        x0 = (numer / den).ravel()
+        x, info = spla.cg(A, b, x0=x0, rtol=self.viscous_tol, atol=0.0, maxiter=self.viscous_maxiter, M=M, callback=cb)
+        if info != 0:
+            self._visc_fail = f"implicit viscous solve of {_NAMES[c]} did not converge ({count[0]} iterations)"
+        return x.reshape(shape), count[0]
 
     def _first_nonfinite(self) -> str:
         for name, f in (("u", self.u), ("v", self.v), ("w", self.w), ("p", self.p)):
@@ -311,7 +374,7 @@ class GasSolver:
         """Largest stable step of the explicit terms:
 
         * advection: ``cfl_max / (max|u|/dx + max|v|/dy + max|w|/dz)``;
-        * viscosity (explicit Euler): ``1 / (2 nu_e S)``, ``S = max_c [sum_d 1/h_d^2 +
+        * viscosity (explicit Euler only; none with ``viscosity="implicit"``): ``1 / (2 nu_e S)``, ``S = max_c [sum_d 1/h_d^2 +
           (1 + lam_ratio)/h_c^2]``, ``nu_e = nu max(eps)/min(eps)``;
         * Coriolis (explicit): ``0.05 / |Omega|`` (amplification ``sqrt(1 + (2|Omega|dt)^2)``
           per step stays below 1 + 5e-3).
@@ -321,7 +384,7 @@ class GasSolver:
         rate = self._advective_rate()
         if rate > 0:
             lims.append(self.cfl_max / rate)
-        if self.nu > 0:
+        if self.nu > 0 and self.viscosity == "explicit":
             e = self.eps.interior
             nu_e = self.nu * float(e.max() / e.min())
             inv = [1.0 / h**2 for h in self.grid.spacing]

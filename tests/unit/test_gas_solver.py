@@ -16,12 +16,13 @@ def _one_thread():
     numba.set_num_threads(n)
 
 
-def chute_section(advection="tvd"):
+def chute_section(advection="tvd", viscosity="explicit"):
     g = StaggeredGrid((6, 5, 16), (0.08, 0.045, 0.24))
     om = (0.0, 1.45, -0.84)
     bcs = {"x-": NoSlip(), "x+": NoSlip(), "y-": NoSlip(), "y+": LidCrossWind(omega=om, axis_point=(0.04, 0, 0.035)),
            "z-": Inlet(speed=lambda x, y, z: 0.5 + 5 * y), "z+": PressureOutlet(p=lambda x, y, z: 1.2 * -8.5 * y)}
-    s = GasSolver(g, bcs=bcs, gravity=(0.0, -8.5, 4.9), omega=om, axis_point=(0.04, 0, 0.035), advection=advection)
+    s = GasSolver(g, bcs=bcs, gravity=(0.0, -8.5, 4.9), omega=om, axis_point=(0.04, 0, 0.035), advection=advection,
+                  viscosity=viscosity)
     return g, s
 
 
@@ -43,13 +44,14 @@ def drive(s, g, n0, n1, dt=1e-3):
     return infos
 
 
-def test_restart_is_bit_identical():
-    g, a = chute_section()
+@pytest.mark.parametrize("viscosity", ["explicit", "implicit"])
+def test_restart_is_bit_identical(viscosity):
+    g, a = chute_section(viscosity=viscosity)
     a.set_porosity(eps_at(g, 0.0))
     drive(a, g, 0, 8)
     state = a.get_state()
     drive(a, g, 8, 16)
-    g2, b = chute_section()
+    g2, b = chute_section(viscosity=viscosity)
     b.set_state(state)
     drive(b, g2, 8, 16)
     for fa, fb in zip((a.u, a.v, a.w, a.p), (b.u, b.v, b.w, b.p)):
@@ -125,3 +127,19 @@ def test_implicit_drag_relaxes_to_particle_velocity():
     # (eps + dt K/rho) u = dt K/rho U_p  ->  u = U_p * 500 / 500.5
     assert np.allclose(s.u.interior, 1.0 * 500 / 500.5, rtol=1e-12)
     assert np.allclose(s.v.interior, -2.0 * 500 / 500.5, rtol=1e-12)
+
+
+def test_implicit_viscosity_matches_explicit_for_small_steps():
+    """With a step far below the viscous limit, semi-implicit and explicit viscosity agree to
+    O(dt) (backward vs forward Euler on the same spatial operator)."""
+    res = {}
+    for visc in ("explicit", "implicit"):
+        g, s = chute_section(viscosity=visc)
+        s.set_porosity(eps_at(g, 0.0))
+        infos = drive(s, g, 0, 10, dt=2e-4)
+        res[visc] = s.w.interior.copy()
+        if visc == "implicit":
+            assert all(i.viscous_iterations > 0 for i in infos)
+    scale = np.max(np.abs(res["explicit"]))
+    assert np.max(np.abs(res["implicit"] - res["explicit"])) < 1e-3 * scale
+    assert np.max(np.abs(res["implicit"] - res["explicit"])) > 0
