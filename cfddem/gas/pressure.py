@@ -189,7 +189,7 @@ class PressureSolver:
         rng_state = np.random.get_state()
         np.random.seed(20240531)
         try:
-            self._ml = pyamg.smoothed_aggregation_solver(self.A.copy(), B=np.ones((self.N, 1)), max_coarse=50,
+            self._ml = pyamg.smoothed_aggregation_solver(self.A.copy(), B=np.ones((self.N, 1)), max_coarse=500,
                                                          presmoother=pre, postsmoother=post)
         finally:
             np.random.set_state(rng_state)
