@@ -282,15 +282,7 @@ def run_is_complete(out: str | Path, case=None) -> bool:
     meta = _read_run_json(out)
     if not meta or meta.get("status") != "done" or not (out / "results.h5").is_file():
         return False
-    try:
-        from .io.results import read_config
-
-        _, stored = read_config(out / "results.h5")
-    except Exception:
-        return False
-    if case is not None and stored != _canonical(case.resolved):
-        return False
-    return True
+    return _same_config(out, case)
 
 
 def _scalar(v) -> float | None:
@@ -356,14 +348,15 @@ def _flatten_measurements(tree: dict, prefix: str = "") -> dict[str, float]:
     return out
 
 
-def _same_config(out: Path, case) -> bool:
+def _same_config(out: Path, case=None) -> bool:
+    """``out/results.h5`` opens and holds the resolved configuration of ``case`` (any, without)."""
     try:
         from .io.results import read_config
 
         _, stored = read_config(out / "results.h5")
     except Exception:
         return False
-    return stored == _canonical(case.resolved)
+    return case is None or stored == _canonical(case.resolved)
 
 
 def can_resume(out: str | Path, case) -> bool:
@@ -450,6 +443,8 @@ def run_variant(case_path: str, overrides: dict[str, Any], out_dir: str, threads
         fresh = False
     row = read_run_summary(out) if fresh else {"measurements": {}}
     row.pop("error", None)
+    if row.get("read_error"):
+        error = f"{error}; {row['read_error']}" if error else row["read_error"]
     row.update(status=status, error=error, wall_time=_time.perf_counter() - t0, threads=n, out_dir=str(out),
                resumed=resumed)
     return row
