@@ -9,7 +9,8 @@ into its own run folder ``SWEEP_DIR/<key1>=<v1>__<key2>=<v2>`` (sanitised), and 
   wall-time limit or got SIGINT/SIGTERM), ``wall_time``, the
   numba ``threads`` of the task, the run's ``steps`` and final ``time``, the measurements
   ``n_particles``, ``mass_out``, final ``mean_velocity_z`` (last row of ``/series``) and every
-  scalar under ``/measurements`` of its ``results.h5`` (column ``/``-joined path), ``error``;
+  numeric scalar under ``/measurements`` of its ``results.h5`` (column ``/``-joined path),
+  ``error``;
 * ``SWEEP_DIR/summary.md``   the same as a Markdown table;
 * ``SWEEP_DIR/chart_<measurement>.png``  the chosen measurement against the first varied key,
   one line per combination of the other varied keys.
@@ -285,13 +286,16 @@ def run_is_complete(out: str | Path, case=None) -> bool:
     return _same_config(out, case)
 
 
-def _scalar(v) -> float | None:
+def _scalar(v) -> float | int | None:
+    """A numeric 0-d value as a Python float (int for integer and boolean kinds: counters)."""
     import numpy as np
 
     if isinstance(v, (str, bytes, dict)):
         return None
     a = np.asarray(v)
-    if a.ndim == 0 and a.dtype.kind in "biuf":
+    if a.ndim == 0 and a.dtype.kind in "biu":
+        return int(a)
+    if a.ndim == 0 and a.dtype.kind == "f":
         return float(a)
     return None
 
@@ -532,10 +536,23 @@ def write_summary_md(rows: list[dict], keys: list[str], path: str | Path, title:
 
 
 def default_chart(rows: list[dict]) -> str:
-    """The first scalar under ``/measurements`` when the runs have any, else the final
-    ``mean_velocity_z``."""
-    extra = measurement_names(rows)[len(BASE_MEASUREMENTS):]
-    return extra[0] if extra else "mean_velocity_z"
+    """The measurement charted when none is named: the first one whose value differs between
+    the finished variants, taking first the floating-point scalars under ``/measurements`` (in
+    column order; integer scalars such as ``n_samples`` are counters) and then
+    ``mean_velocity_z``, ``mass_out``, ``n_particles``; ``mean_velocity_z`` when none differs
+    (a chart of a constant, such as the start of an averaging window, says nothing)."""
+    finished = [r for r in rows if r.get("status") in ("done", "skipped", "stopped")]
+
+    def value(r, name):
+        return r.get(name, r.get("measurements", {}).get(name))
+
+    floats = [n for n in measurement_names(rows)[len(BASE_MEASUREMENTS):]
+              if any(isinstance(value(r, n), float) for r in finished)]
+    for name in floats + ["mean_velocity_z", "mass_out", "n_particles"]:
+        vals = {value(r, name) for r in finished if _is_number(value(r, name)) and math.isfinite(value(r, name))}
+        if len(vals) > 1:
+            return name
+    return "mean_velocity_z"
 
 
 def _is_number(v) -> bool:
@@ -784,8 +801,8 @@ def add_sweep_parser(subparsers) -> Any:
     s.add_argument("--workers", type=int, help="local worker processes (default: min(variants, cores))")
     s.add_argument("--threads", type=int, help="numba threads per task (default: cores // workers)")
     s.add_argument("--chart", metavar="NAME",
-                   help="measurement to chart against the first varied key (default: the first "
-                        "/measurements scalar, else mean_velocity_z)")
+                   help="measurement to chart against the first varied key (default: the first one "
+                        "that differs between the variants, see docs/sweeps.md)")
     s.add_argument("--force", action="store_true", help="run variants even when dt > t_c/5")
     return s
 

@@ -121,7 +121,8 @@ def test_read_run_summary_collects_series_and_scalar_measurements(tmp_path):
     s = S.read_run_summary(out)
     assert s["status"] == "done" and s["steps"] == 1000 and s["n_particles"] == 3 and s["mass_out"] == 0.25
     assert s["mean_velocity_z"] == pytest.approx(0.12)
-    assert s["measurements"] == {"chute/flow_rate": 1.6, "chute/inner/h": 7.0, "bed_height_mean": 0.012}
+    assert s["measurements"] == {"chute/flow_rate": 1.6, "chute/inner/h": 7, "bed_height_mean": 0.012}
+    assert isinstance(s["measurements"]["chute/inner/h"], int)
     assert S.read_run_summary(tmp_path / "nothing") == {"measurements": {}}
 
 
@@ -186,6 +187,15 @@ def test_chart_is_written_per_second_key(tmp_path):
     assert png is not None and png.stat().st_size > 5000
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert S.default_chart(ROWS) == "chute/h"
+    # integer counters and constants are not charted by default; what differs is
+    more = [dict(r, measurements={"n_samples": 12 + i, "t_first": 0.001, **r["measurements"]})
+            for i, r in enumerate(ROWS)]
+    assert S.default_chart(more) == "chute/h"
+    flat = [dict(r, measurements={"n_samples": 12, "t_first": 0.001}) for r in ROWS]
+    assert S.default_chart(flat) == "mean_velocity_z"
+    same_v = [dict(r, mean_velocity_z=0.1, n_particles=i, measurements={}) for i, r in enumerate(ROWS)]
+    assert S.default_chart(same_v) == "n_particles"
+    assert S.default_chart([ROWS[2]]) == "mean_velocity_z"  # nothing finished
     assert S.default_chart(ROWS[2:3]) == "mean_velocity_z"
     assert S.write_chart(ROWS, ["mu", "e"], "no_such", tmp_path / "d.png") is None
     cat = [dict(r, values={"inlet.type": t}) for r, t in zip(ROWS[:2], ("none", "sluice"))]
