@@ -8,8 +8,8 @@ adjacent cell centres) the kernel returns, per unit volume and divided by rho_g,
 * advection, in the bounded non-conservative finite-volume form
   ``A = -(1/Vol) sum_faces F_f (q_f - u_P)`` with F_f the mass flux (eps^n u^n, averaged
   to the control-volume face) and q_f the advected velocity on that face.  It equals the
-  conservative ``-div(eps u u)`` minus ``u`` times the discrete continuity residual, so a
-  uniform flow stays uniform for any porosity field, and with an upwind-biased q_f it is
+  conservative ``-div(eps u u)`` minus ``u`` times the discrete continuity residual, so it
+  vanishes for a uniform flow whatever the porosity field, and with an upwind-biased q_f it is
   the standard bounded (positive-coefficient) form (Patankar 1980; Ferziger & Peric ch. 5).
   q_f: ``scheme=0`` central (second order, non-dissipative), ``scheme=1`` TVD van Leer
   (van Leer 1974): ``q_f = q_U + (1/2) phi(r) (q_D - q_U)`` with the upwind point U,
