@@ -131,6 +131,8 @@ class GasSolver:
         self.step_count = 0
         self._last_dt = None
         self._last_div = 0.0
+        self._visc_fail = ""
+        self.last_info: GasStepInfo | None = None
         self.fill_halos()
 
     # --- state setting ------------------------------------------------------------------
@@ -311,8 +313,9 @@ class GasSolver:
             ok = False
             msg = (f"pressure solver did not converge: relative residual {sinfo.residual:.3e} after "
                    f"{sinfo.iterations} iterations (tol {self.psolver.tol:.1e})")
-        return GasStepInfo(sinfo.iterations, sinfo.residual, cfl, self._last_div, ok, msg,
-                           sinfo.rebuilt, sinfo.compatibility, viscous_iters)
+        self.last_info = GasStepInfo(sinfo.iterations, sinfo.residual, cfl, self._last_div, ok, msg,
+                                     sinfo.rebuilt, sinfo.compatibility, viscous_iters)
+        return self.last_info
 
     def _implicit_viscous(self, c, sl, numer, den, eo, dt, face_range):
         """Solve ``den u* - dt L(u*) = numer - dt L(u^n)`` for component c on the updated
