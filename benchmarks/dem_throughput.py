@@ -30,8 +30,14 @@ import subprocess
 import sys
 import time
 
-import numba
-import numpy as np
+# OpenMP threads that spin while waiting at the end of each parallel loop lose badly when the
+# cores are shared with other processes; passive waiting is the robust choice (--omp-wait).
+if "--omp-wait" in sys.argv:
+    os.environ["OMP_WAIT_POLICY"] = sys.argv[sys.argv.index("--omp-wait") + 1].upper()
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import numba  # noqa: E402
+import numpy as np  # noqa: E402
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
@@ -116,15 +122,22 @@ def main(argv=None):
                     help="steps before timing (default 20000 at 30,000 particles, scaled ~1/N otherwise)")
     ap.add_argument("--flow-check", action="store_true", help="run on to t = 0.4 s and print the flow state")
     ap.add_argument("--peer", action="store_true")
+    ap.add_argument("--omp-wait", choices=["passive", "active"], default="passive",
+                    help="OMP_WAIT_POLICY for numba's OpenMP threads (default passive)")
     a = ap.parse_args(argv)
 
     threads = [a.threads] if a.threads else [1, min(2, numba.config.NUMBA_NUM_THREADS)]
     numba.set_num_threads(max(threads))
     s = build(a.particles)
-    print(f"particles={s.n} periodic_length={s._plen[2]:.4f} m threads={threads}")
+    print(f"particles={s.n} periodic_length={s._plen[2]:.4f} m threads={threads} "
+          f"OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY')}")
     t0 = time.perf_counter()
     s.step(5)  # compile (excluded)
-    print(f"compile+first steps: {time.perf_counter() - t0:.1f} s")
+    try:
+        layer = numba.threading_layer()
+    except ValueError:
+        layer = "none (serial kernels)"
+    print(f"compile+first steps: {time.perf_counter() - t0:.1f} s; threading layer {layer}")
     dev = a.dev_steps
     if dev is None:
         dev = 20000 if a.particles <= 30000 else max(1000, int(20000 * 30000 / a.particles))

@@ -65,21 +65,29 @@ def _half_kick(vx, vy, vz, ax, ay, az, h, rotating, R):
     return vx, vy, vz
 
 
+@kernel(inline="always")
+def _ext(ext_f, ext_t, i, has_ext):
+    if has_ext:
+        return ext_f[i, 0], ext_f[i, 1], ext_f[i, 2], ext_t[i, 0], ext_t[i, 1], ext_t[i, 2]
+    return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+
+
 @parallel_kernel
-def kick_drift(n, pos, vel, omg, force, torque, mass, inertia, ext_f, ext_t, dt, rotating, Rv, Rw,
-               periodic_len, plo, ref):
+def kick_drift(n, pos, vel, omg, force, torque, mass, inertia, ext_f, ext_t, has_ext, dt, rotating,
+               Rv, Rw, periodic_len, plo, ref):
     """Opening half kick and drift; wraps periodic axes; returns max |r - r_ref|^2."""
     h = 0.5 * dt
     m2 = 0.0
     for i in prange(n):
         im = 1.0 / mass[i]
         ii = 1.0 / inertia[i]
+        efx, efy, efz, etx, ety, etz = _ext(ext_f, ext_t, i, has_ext)
         vx, vy, vz = _half_kick(vel[i, 0], vel[i, 1], vel[i, 2],
-                                (force[i, 0] + ext_f[i, 0]) * im, (force[i, 1] + ext_f[i, 1]) * im,
-                                (force[i, 2] + ext_f[i, 2]) * im, h, rotating, Rv)
+                                (force[i, 0] + efx) * im, (force[i, 1] + efy) * im,
+                                (force[i, 2] + efz) * im, h, rotating, Rv)
         wx, wy, wz = _half_kick(omg[i, 0], omg[i, 1], omg[i, 2],
-                                (torque[i, 0] + ext_t[i, 0]) * ii, (torque[i, 1] + ext_t[i, 1]) * ii,
-                                (torque[i, 2] + ext_t[i, 2]) * ii, h, rotating, Rw)
+                                (torque[i, 0] + etx) * ii, (torque[i, 1] + ety) * ii,
+                                (torque[i, 2] + etz) * ii, h, rotating, Rw)
         vel[i, 0] = vx
         vel[i, 1] = vy
         vel[i, 2] = vz
@@ -107,8 +115,11 @@ def kick_drift(n, pos, vel, omg, force, torque, mass, inertia, ext_f, ext_t, dt,
 
 @parallel_kernel
 def pair_forces(npairs, pi, pj, pos, vel, omg, radius, mass, inertia, params, periodic_len,
-                hist, pf, pta, ptb, dt, dt_hist):
-    """Per-pair contact force on the first particle a (pf), torques on a (pta) and b (ptb);
+                hist, pf, pr, dt, dt_hist):
+    """Per pair: pf[k] = (contact force on the first particle a, n x F_t), pr[k] = rolling
+    torque on a (only written when mu_r > 0).  The torques are R_a n x F_t + T_r on a and
+    R_b n x F_t - T_r on b (assembled in the gather).  Updates the tangential history (zero when
+    not touching).
     updates the tangential history (zero when not touching).  Returns the max overlap ratio
     d_n / min(R_a, R_b)."""
     mur = params[0, P_MUR]
@@ -127,10 +138,12 @@ def pair_forces(npairs, pi, pj, pos, vel, omg, radius, mass, inertia, params, pe
             hist[k, 0] = 0.0
             hist[k, 1] = 0.0
             hist[k, 2] = 0.0
-            for c in range(3):
+            for c in range(6):
                 pf[k, c] = 0.0
-                pta[k, c] = 0.0
-                ptb[k, c] = 0.0
+            if mur > 0.0:
+                pr[k, 0] = 0.0
+                pr[k, 1] = 0.0
+                pr[k, 2] = 0.0
             continue
         d = math.sqrt(d2)
         nx = dx / d
@@ -159,26 +172,23 @@ def pair_forces(npairs, pi, pj, pos, vel, omg, radius, mass, inertia, params, pe
         cx = ny * tz - nz * ty
         cy = nz * tx - nx * tz
         cz = nx * ty - ny * tx
-        rx = 0.0
-        ry = 0.0
-        rz = 0.0
+        pf[k, 3] = cx
+        pf[k, 4] = cy
+        pf[k, 5] = cz
         if mur > 0.0:
             rx, ry, rz = rolling_torque_limited(
                 mur, ra * rb / rs, fnabs, omg[a, 0] - omg[b, 0], omg[a, 1] - omg[b, 1],
                 omg[a, 2] - omg[b, 2], 1.0 / inertia[a] + 1.0 / inertia[b], dt)
-        pta[k, 0] = ra * cx + rx
-        pta[k, 1] = ra * cy + ry
-        pta[k, 2] = ra * cz + rz
-        ptb[k, 0] = rb * cx - rx
-        ptb[k, 1] = rb * cy - ry
-        ptb[k, 2] = rb * cz - rz
+            pr[k, 0] = rx
+            pr[k, 1] = ry
+            pr[k, 2] = rz
         ovmax = max(ovmax, dn / min(ra, rb))
     return ovmax
 
 
 @parallel_kernel
-def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ext_f, ext_t,
-                      pf, pta, ptb, first_start, second_start, second_list,
+def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ext_f, ext_t, has_ext,
+                      pf, pr, has_roll, first_start, second_start, second_list,
                       wgeom, wref, wpar, nw, whist, won, wfw, wtw, wfn,
                       gx, gy, gz, omx, omy, omz, cax, cay, caz,
                       dt, dt_hist, kick, rotating, Rv, Rw, drift_next, periodic_len, plo, ref):
@@ -208,25 +218,34 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
         tx = 0.0
         ty = 0.0
         tz = 0.0
+        r = radius[i]
+        efx, efy, efz, etx, ety, etz = _ext(ext_f, ext_t, i, has_ext)
         for k in range(first_start[i], first_start[i + 1]):
             fx += pf[k, 0]
             fy += pf[k, 1]
             fz += pf[k, 2]
-            tx += pta[k, 0]
-            ty += pta[k, 1]
-            tz += pta[k, 2]
+            tx += r * pf[k, 3]
+            ty += r * pf[k, 4]
+            tz += r * pf[k, 5]
+            if has_roll:
+                tx += pr[k, 0]
+                ty += pr[k, 1]
+                tz += pr[k, 2]
         for s in range(second_start[i], second_start[i + 1]):
             k = second_list[s]
             fx -= pf[k, 0]
             fy -= pf[k, 1]
             fz -= pf[k, 2]
-            tx += ptb[k, 0]
-            ty += ptb[k, 1]
-            tz += ptb[k, 2]
+            tx += r * pf[k, 3]
+            ty += r * pf[k, 4]
+            tz += r * pf[k, 5]
+            if has_roll:
+                tx -= pr[k, 0]
+                ty -= pr[k, 1]
+                tz -= pr[k, 2]
         x = pos[i, 0]
         y = pos[i, 1]
         z = pos[i, 2]
-        r = radius[i]
         m = mass[i]
         inert = inertia[i]
         vx = vel[i, 0]
@@ -283,9 +302,9 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
                     wfw[i, w, c] = 0.0
                     wtw[i, w, c] = 0.0
         if anyroll:
-            pwx = wx + dt * (tx + ext_t[i, 0]) / inert
-            pwy = wy + dt * (ty + ext_t[i, 1]) / inert
-            pwz = wz + dt * (tz + ext_t[i, 2]) / inert
+            pwx = wx + dt * (tx + etx) / inert
+            pwy = wy + dt * (ty + ety) / inert
+            pwz = wz + dt * (tz + etz) / inert
             for w in range(nw):
                 mur = wpar[w, P_MUR]
                 if won[i, w] == 0 or mur == 0.0:
@@ -333,29 +352,28 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
         if kick:
             im = 1.0 / m
             ii = 1.0 / inert
-            vx, vy, vz = _half_kick(vx, vy, vz, (fx + ext_f[i, 0]) * im, (fy + ext_f[i, 1]) * im,
-                                    (fz + ext_f[i, 2]) * im, h, rotating, Rv)
-            wx, wy, wz = _half_kick(wx, wy, wz, (tx + ext_t[i, 0]) * ii, (ty + ext_t[i, 1]) * ii,
-                                    (tz + ext_t[i, 2]) * ii, h, rotating, Rw)
+            vx, vy, vz = _half_kick(vx, vy, vz, (fx + efx) * im, (fy + efy) * im,
+                                    (fz + efz) * im, h, rotating, Rv)
+            wx, wy, wz = _half_kick(wx, wy, wz, (tx + etx) * ii, (ty + ety) * ii,
+                                    (tz + etz) * ii, h, rotating, Rw)
             vel[i, 0] = vx
             vel[i, 1] = vy
             vel[i, 2] = vz
             omg[i, 0] = wx
             omg[i, 1] = wy
             omg[i, 2] = wz
-        ok = (math.isfinite(x) and math.isfinite(y) and math.isfinite(z) and math.isfinite(vx)
-              and math.isfinite(vy) and math.isfinite(vz) and math.isfinite(wx)
-              and math.isfinite(wy) and math.isfinite(wz))
-        if not ok:
+        # one test for all nine: a NaN or inf anywhere makes (t - t) NaN
+        tsum = x + y + z + vx + vy + vz + wx + wy + wz
+        if not (tsum - tsum == 0.0):
             bad += 1
         d2 = 0.0
         if drift_next:
             im2 = 1.0 / m
             ii2 = 1.0 / inert
-            ux, uy, uz = _half_kick(vx, vy, vz, (fx + ext_f[i, 0]) * im2, (fy + ext_f[i, 1]) * im2,
-                                    (fz + ext_f[i, 2]) * im2, h, rotating, Rv)
-            sx2, sy2, sz2 = _half_kick(wx, wy, wz, (tx + ext_t[i, 0]) * ii2, (ty + ext_t[i, 1]) * ii2,
-                                       (tz + ext_t[i, 2]) * ii2, h, rotating, Rw)
+            ux, uy, uz = _half_kick(vx, vy, vz, (fx + efx) * im2, (fy + efy) * im2,
+                                    (fz + efz) * im2, h, rotating, Rv)
+            sx2, sy2, sz2 = _half_kick(wx, wy, wz, (tx + etx) * ii2, (ty + ety) * ii2,
+                                       (tz + etz) * ii2, h, rotating, Rw)
             vel[i, 0] = ux
             vel[i, 1] = uy
             vel[i, 2] = uz

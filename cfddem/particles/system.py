@@ -70,6 +70,8 @@ class ParticleSystem:
         self.max_overlap_ratio_limit = float(max_overlap_ratio)
         self._skin_user = skin
         self._pp_params = pp.params().reshape(1, -1)
+        self._has_roll = pp.mu_r > 0.0
+        self._has_ext = False
         self._wgeom, self._wref, self._wpar = pack_walls(self.walls)
         self.nw = len(self.walls)
         self._plen = np.zeros(3)
@@ -131,8 +133,8 @@ class ParticleSystem:
 
     def _alloc_pairs(self, pcap, cap):
         return dict(pcap=pcap, pi=np.zeros(pcap, np.int64), pj=np.zeros(pcap, np.int64),
-                    hist=np.zeros((pcap, 3)), pf=np.zeros((pcap, 3)), pta=np.zeros((pcap, 3)),
-                    ptb=np.zeros((pcap, 3)), second_list=np.zeros(pcap, np.int64),
+                    hist=np.zeros((pcap, 3)), pf=np.zeros((pcap, 6)), pr=np.zeros((pcap, 3)),
+                    second_list=np.zeros(pcap, np.int64),
                     first_start=np.zeros(cap + 1, np.int64), second_start=np.zeros(cap + 1, np.int64),
                     counts=np.zeros(cap, np.int64))
 
@@ -299,13 +301,13 @@ class ParticleSystem:
         ser = self._serial(self.n)
         ov_pp = (it.pair_forces_s if ser else it.pair_forces)(self._npairs, cur["pi"], cur["pj"], self._pos, self._vel, self._omega,
                                self._radius, self._mass, self._inertia, self._pp_params, self._plen,
-                               cur["hist"], cur["pf"], cur["pta"], cur["ptb"], self.dt, dt_hist)
+                               cur["hist"], cur["pf"], cur["pr"], self.dt, dt_hist)
         g, om, ap = self.gravity, self.frame_omega, self.axis_point
         drift_next = drift_next and ov_pp <= self.max_overlap_ratio_limit
         bad, ov_w, m2 = (it.gather_walls_kick_s if ser else it.gather_walls_kick)(
             self.n, self._pos, self._vel, self._omega, self._force, self._torque, self._radius,
-            self._mass, self._inertia, self._ext_force, self._ext_torque, cur["pf"], cur["pta"],
-            cur["ptb"], cur["first_start"], cur["second_start"], cur["second_list"],
+            self._mass, self._inertia, self._ext_force, self._ext_torque, self._has_ext, cur["pf"], cur["pr"],
+            self._has_roll, cur["first_start"], cur["second_start"], cur["second_list"],
             self._wgeom, self._wref, self._wpar, self.nw, self._whist, self._won, self._wfw,
             self._wtw, self._wfn, g[0], g[1], g[2], om[0], om[1], om[2], ap[0], ap[1], ap[2],
             self.dt, dt_hist, kick, self._rotating, self._Rv, self._Rw, drift_next, self._plen,
@@ -322,6 +324,8 @@ class ParticleSystem:
         except MemoryError as exc:
             return self._fail("overflow_unrecoverable", -1, float("nan"),
                               f"step {self.step_count}: neighbour list could not grow ({exc})")
+        n = self.n
+        self._has_ext = bool(np.any(self._ext_force[:n]) or np.any(self._ext_torque[:n]))
         bad = self._forces(kick=False, dt_hist=0.0)
         self._forces_stale = False
         if bad:
@@ -345,6 +349,8 @@ class ParticleSystem:
             if st is not None:
                 return st
         dt = self.dt
+        n = self.n
+        self._has_ext = bool(np.any(self._ext_force[:n]) or np.any(self._ext_torque[:n]))
         for s in range(n_steps):
             if self._pending_m2 >= 0.0:
                 # the opening kick + drift of this step were fused into the previous gather
@@ -353,7 +359,7 @@ class ParticleSystem:
             else:
                 kd = it.kick_drift_s if self._serial(self.n) else it.kick_drift
                 m2 = kd(self.n, self._pos, self._vel, self._omega, self._force, self._torque,
-                        self._mass, self._inertia, self._ext_force, self._ext_torque, dt,
+                        self._mass, self._inertia, self._ext_force, self._ext_torque, self._has_ext, dt,
                         self._rotating, self._Rv, self._Rw, self._plen, self._plo, self._ref)
             if m2 > (0.5 * self._skin_built) ** 2 or self._need_rebuild or not math.isfinite(m2):
                 try:
@@ -460,7 +466,7 @@ class ParticleSystem:
             st["p_" + name] = getattr(self, "_" + name)[:n].copy()
         cur = self._cur
         npairs = self._npairs
-        for name in ("pi", "pj", "hist", "pf", "pta", "ptb", "second_list"):
+        for name in ("pi", "pj", "hist", "pf", "pr", "second_list"):
             st["l_" + name] = cur[name][:npairs].copy()
         nbuilt = self._n_built
         for name in ("first_start", "second_start"):
@@ -479,7 +485,7 @@ class ParticleSystem:
         npairs = int(state["npairs"])
         nbuilt = int(state["n_built"])
         cur = self._alloc_pairs(max(int(1.3 * npairs) + 64, 64), max(self._cap, nbuilt))
-        for name in ("pi", "pj", "hist", "pf", "pta", "ptb", "second_list"):
+        for name in ("pi", "pj", "hist", "pf", "pr", "second_list"):
             cur[name][:npairs] = state["l_" + name]
         for name in ("first_start", "second_start"):
             cur[name][: nbuilt + 1] = state["l_" + name]
