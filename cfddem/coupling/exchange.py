@@ -29,23 +29,32 @@ Scheme (one coupling step, at particle time t; superscript n+1 = the gas after i
    (I = interpolation = D^T).
 4. Particle drag impulse ``J_a = dt_g K_eff,a (I(u^{n+1})_a - v_a)``: by the transpose
    property the sum of the J_a is exactly (to round-off) what the gas lost in step 3.
-5. Pressure force, consistent with the gas's ``-eps_f grad p`` (eps_f the arithmetic face
-   mean of the cell porosity, boundary halos zero-gradient):  the gas momentum equation on
-   face f receives ``-eps_f g_f V_cell`` with ``g_f`` the face difference of ``p^{n+1}``
-   (the pressure after the projection; the predictor's ``p^n`` and the correction's
-   increment add up to it).  Writing ``eps_f = 1 - phi_f`` with ``phi_f = (phi_{i-1} +
-   phi_i)/2`` and ``phi_i = sum_a w_ai V_a / V_cell``, the solid part of that sum is
-   ``sum_f phi_f g_f V_cell = sum_a V_a I_c(G)_a`` with the *centre* field
-   ``G_i = (g_i + g_{i+1})/2`` (faces that the momentum equation updates only; a boundary
-   cell whose halo copies it counts its outer updated face twice, i.e. with weight 1).
-   The particle pressure force is therefore ``F^p_a = -V_a I_c(G)_a`` (trilinear from the
-   cell centres, the same weights as the porosity); then gas plus particles receive
-   ``-V_cell sum_f g_f`` in total, which telescopes to 0 on a periodic axis: the pressure
-   exchange conserves momentum exactly.  In the interior ``G`` is the central difference
-   ``(p_{i+1} - p_{i-1})/(2h)``, exact for linear p; in the cell next to a wall (whose
-   boundary face is not a gas unknown) G is half the gradient of the inner face, so the
-   particles there feel a reduced pressure force (the rest acts on the wall).  With
-   ``eps_floor`` active the clipped cells break this exactness (logged).
+5. Pressure force ``F^p_a = -V_a grad p``, conserving momentum exactly with the gas's
+   ``-eps_f grad p`` (eps_f the gas's arithmetic face mean of the cell porosity, boundary
+   halos zero-gradient), in two parts:
+
+   a. *transpose part* at ``p^{n+1}`` (the pressure after the projection; the predictor's
+      ``p^n`` and the correction's increment add up to it): the gas on face f receives
+      ``-eps_f g_f V_cell``, g_f the face difference.  With ``eps_f = 1 - phi^avg_f``,
+      ``phi^avg_f = (phi_{i-1} + phi_i)/2``, ``phi_i = sum_a w_ai V_a / V_cell``, the solid
+      part ``sum_f phi^avg_f g_f V_cell = sum_a V_a I_c(G)_a`` with the *centre* field
+      ``G_i = (g_i + g_{i+1})/2`` over the faces the momentum equation updates (a boundary
+      cell whose halo copies it counts its outer updated face with weight 1).  The particles
+      receive ``-V_a I_c(G^{n+1})_a`` (trilinear from the centres, the porosity's weights);
+      gas plus particles then receive ``-V_cell sum_f g_f``, which telescopes to 0 on a
+      periodic axis.  In the interior G is the central difference, exact for linear p; but
+      in the cell next to a wall whose boundary face is not a gas unknown G is only half the
+      inner face gradient, and a bed resting on the floor would lose half of its buoyancy
+      there (measured: the bottom layer stayed on the distributor above U_mf).
+   b. *correction pair* at ``p^n`` (the pressure before the gas step): the particles also
+      receive ``-V_a [I_f(g^n) - I_c(G^n)]_a`` (I_f: face interpolation with the wall fold,
+      so a particle within half a cell of a wall sees the first interior face's gradient)
+      and the gas the explicit source ``S_f = (phi^face_f - phi^avg_f) g^n_f`` [N/m3] with
+      ``phi^face_f = D(V_a)_f / V_cell`` (face deposition).  By the transpose identities the
+      two sum to zero exactly.  Together the particles feel
+      ``-V_a [I_f(g^n) + I_c(G^{n+1} - G^n)] = -V_a I_f(g^{n+1}) + O(p^{n+1} - p^n)``:
+      the standard trilinear pressure force, exact in a steady state.
+
 6. ``system.ext_force = J/dt_g + F^p``, constant over the next N particle steps (the
    velocity-Verlet kicks apply it for exactly N dt = dt_g).
 
@@ -54,7 +63,7 @@ t the gas sits at t + dt_g and the particles catch up during the interval.  The 
 change enters the gas continuity equation through ``set_porosity`` (eps^{n+1} - eps^n)/dt_g.
 
 What is conserved: the drag and pressure exchanges exactly (``last_exchange`` records both
-sides).  The gas solver's bounded advection form (see :mod:`cfddem.gas.momentum`) carries
+sides; a cell clipped by ``eps_floor`` breaks part 5a there).  The gas solver's bounded advection form (see :mod:`cfddem.gas.momentum`) carries
 a term ``u (eps^{n+1}_f - 2 eps^n_f + eps^{n-1}_f)`` (a second time difference of the
 porosity) and the pressure solver's residual, so the *total* momentum of a closed periodic
 box is conserved to that level (1e-12 relative when the particles barely move, see
@@ -118,6 +127,11 @@ class CoupledGas:
     periodic: per axis, whether it is periodic (default: from the bcs).
     eps_min: porosity below which cells are reported; eps_floor: if set, the porosity
     handed to the gas (and used by the closures) is max(eps, eps_floor), logged.
+    superficial_inlets: {side: U} for :class:`Inlet` sides whose *superficial* velocity U
+    is prescribed: the gas's inlet face velocity is the interstitial one, so at every
+    coupling step it is reset to U / eps of the adjacent cell (the porous continuity flux
+    through the face, eps_f u with the zero-gradient porosity halo, is then exactly U).
+    A bed resting on a distributor needs this; a plain Inlet would feed eps U.
     log: a logger (default ``logging.getLogger("cfddem")``); gas_kw: passed to GasSolver
     (advection, tol, maxiter, ...).
     """
@@ -125,7 +139,8 @@ class CoupledGas:
     def __init__(self, system, grid: StaggeredGrid, bcs: dict, *, rho: float, mu: float,
                  closure: str = "beetstra", coupling_interval: int = 10, drag_treatment: str = "implicit",
                  gravity=(0.0, 0.0, 0.0), omega=(0.0, 0.0, 0.0), axis_point=(0.0, 0.0, 0.0),
-                 periodic=None, log=None, eps_min: float = 0.3, eps_floor: float | None = None, **gas_kw):
+                 periodic=None, log=None, eps_min: float = 0.3, eps_floor: float | None = None,
+                 superficial_inlets: dict | None = None, **gas_kw):
         if drag_treatment not in ("implicit", "explicit"):
             raise CaseError("gas.drag_treatment", f"'implicit' or 'explicit', got {drag_treatment!r}")
         if int(coupling_interval) < 1:
@@ -156,6 +171,9 @@ class CoupledGas:
                       "gas_max_divergence": 0.0, "drag_power": 0.0, "n_low_porosity_cells": 0.0,
                       "n_clipped_cells": 0.0, "max_drag_force": 0.0}
         self.last_exchange: dict = {}
+        self._superficial: dict = {}
+        for side, U in (superficial_inlets or {}).items():
+            self.set_superficial_inlet(side, U)
         # time average of the cell-centred gas velocity (write_measurements)
         self._avg_sum = np.zeros(grid.shape + (3,))
         self._avg_time = 0.0
@@ -233,6 +251,7 @@ class CoupledGas:
                          f"more particle volume than the cell holds ({por.n_negative} cells); use larger gas "
                          "cells (about 3 particle diameters or more) or set an eps_floor"))
         gas.set_porosity(eps)
+        self._update_inlets()
         # --- 2. drag coefficients ---------------------------------------------------------
         dtg = self.dt_gas
         if n:
@@ -251,11 +270,17 @@ class CoupledGas:
             vc = grid.cell_volume
             drag_K = tuple(a / vc for a in DK)
             drag_Up = tuple(np.divide(b, a, out=np.zeros_like(a), where=a > 0) for a, b in zip(DK, DKv))
+            # pressure-force correction pair at p^n (module docstring, step 5b)
+            g_old = self._face_gradients()
+            G_old = self._centre_from_faces(g_old)
+            phi_face = [a / vc for a in plan.deposit_faces(np.repeat(vol[:, None], 3, axis=1))]
+            phi_avg = [1.0 - ef for ef in self._face_porosity()]
+            source = tuple((pf - pa) * g for pf, pa, g in zip(phi_face, phi_avg, g_old))
         else:
-            drag_K = drag_Up = None
+            drag_K = drag_Up = source = None
         # --- 3. gas step ------------------------------------------------------------------
         t0 = _time.perf_counter()
-        info = gas.step(dtg, drag_K=drag_K, drag_Up=drag_Up)
+        info = gas.step(dtg, source=source, drag_K=drag_K, drag_Up=drag_Up)
         self._gas_wall = _time.perf_counter() - t0
         if timings is not None:
             timings["gas"] = timings.get("gas", 0.0) + self._gas_wall
@@ -270,9 +295,9 @@ class CoupledGas:
             u1 = plan.interpolate_faces(gas.u.interior, gas.v.interior, gas.w.interior)
             Fd = Keff[:, None] * (u1 - vel)
             G = self.centre_pressure_gradient()
-            Fp = np.empty((n, 3))
+            Fp = -vol[:, None] * plan.interpolate_faces(*g_old)
             for c in range(3):
-                Fp[:, c] = -vol * plan.interpolate(G[c], "ccc")
+                Fp[:, c] -= vol * plan.interpolate(G[c] - G_old[c], "ccc")
             sys_.ext_force[:] = Fd + Fp
             self._last["drag_power"] = float(np.sum(Fd * (u1 - vel)))
             self._last["max_drag_force"] = float(np.max(np.sqrt(np.sum(Fd**2, axis=1))))
@@ -283,7 +308,9 @@ class CoupledGas:
             self.last_exchange = {"particle_drag_impulse": dtg * Fd.sum(axis=0),
                                   "gas_drag_impulse": -gas_drag,
                                   "particle_pressure_impulse": dtg * Fp.sum(axis=0),
-                                  "gas_solid_pressure_impulse": self._solid_pressure_impulse(eps, dtg)}
+                                  "gas_solid_pressure_impulse": self._solid_pressure_impulse(eps, dtg)
+                                  + np.array([dtg * vc * float(np.sum(source[c] * self._upd_mask(c)))
+                                              for c in range(3)])}
         else:
             self._last["drag_power"] = 0.0
             self._last["max_drag_force"] = 0.0
@@ -294,6 +321,37 @@ class CoupledGas:
             self.log.warning("gas time step dt_g = %.3g s exceeds the gas's stable step %.3g s (CFL %.3g)",
                              dtg, gas.max_stable_dt(), info.cfl)
         return None
+
+    def set_superficial_inlet(self, side: str, U: float) -> None:
+        """Prescribe the superficial velocity U [m/s] (into the box) on an Inlet side."""
+        if not isinstance(self.gas.bc.bcs.get(side), Inlet):
+            raise CaseError("gas.bcs", f"side {side!r} is not an Inlet")
+        self._superficial[side] = float(U)
+        self._update_inlets()
+
+    def _update_inlets(self) -> None:
+        """Inlet face speed U / eps(adjacent cell) on each superficial inlet side (uses the
+        halo layout of the porosity array; refreshes the BoundarySet's precomputed values)."""
+        if not self._superficial:
+            return
+        bc, grid = self.gas.bc, self.grid
+        h = grid.halo
+        e = self.gas.eps.data
+        for side, U in self._superficial.items():
+            d = "xyz".index(side[0])
+            idx = h if side[1] == "-" else h + grid.shape[d] - 1
+            row = e[_sl(d, slice(idx, idx + 1))]
+            speed = U / row
+
+            def fn(x, y, z, _row=speed, _U=U):
+                shape = np.broadcast(x, y, z).shape
+                if shape == _row.shape:
+                    return _row
+                return np.full(shape, _U)  # other components' points: the normal speed is unused
+
+            bc.bcs[side] = Inlet(speed=fn, tangential=bc.bcs[side].tangential)
+        bc._precompute()
+        self.gas.fill_halos()
 
     def _upd_mask(self, c):
         m = self._upd[c]
@@ -319,11 +377,29 @@ class CoupledGas:
             out.append(g * self._upd_mask(c))
         return out
 
+    def _face_porosity(self):
+        """The gas's face porosity eps_f = (eps_{I-1} + eps_I)/2 on every face (halo-filled eps)."""
+        grid = self.grid
+        h = grid.halo
+        e = self.gas.eps.data
+        out = []
+        for c in range(3):
+            n = grid.shape[c]
+            a = [slice(h, h + grid.shape[k]) for k in range(3)]
+            b = list(a)
+            a[c] = slice(h - 1, h + n)
+            b[c] = slice(h, h + n + 1)
+            out.append(0.5 * (e[tuple(a)] + e[tuple(b)]))
+        return out
+
     def centre_pressure_gradient(self):
         """The centre field G (module docstring, step 5) for each component, shape (nx,ny,nz):
         the transpose of the gas's face porosity weighting ``eps_f = (eps_{i-1} + eps_i)/2``."""
+        return self._centre_from_faces(self._face_gradients())
+
+    def _centre_from_faces(self, grads):
         out = []
-        for c, g in enumerate(self._face_gradients()):
+        for c, g in enumerate(grads):
             n = self.grid.shape[c]
             if self.periodic[c]:
                 g = g.copy()
@@ -577,26 +653,16 @@ def coupling_diagnostics(case) -> list[str]:
 # ---------------------------------------------------------------------------- test helper
 def column_gas(system, *, lengths, cells, inlet_velocity, rho=1.2, mu=1.8e-5, gravity=(0.0, -9.81, 0.0),
                origin=(0.0, 0.0, 0.0), periodic_xz=True, **kw) -> CoupledGas:
-    """A fluidisation column: gas fed from below through the whole y- side (a uniform velocity
-    inlet, i.e. an ideal distributor plate; the particles rest on their own floor wall, which
-    the gas passes through), pressure outlet p = 0 on y+, x and z periodic (or no-slip walls).
-    ``inlet_velocity`` (superficial, m/s) can be changed later with :func:`set_inlet_velocity`."""
+    """A fluidisation column: gas fed from below through the whole y- side (a uniform
+    superficial velocity inlet, i.e. an ideal distributor plate; the particles rest on their
+    own floor wall, which the gas passes through), pressure outlet p = 0 on y+, x and z
+    periodic (or no-slip walls).  ``inlet_velocity`` (superficial, m/s) can be changed later
+    with ``cg.set_superficial_inlet("y-", U)``."""
     side = (Periodic(), Periodic()) if periodic_xz else (NoSlip(), NoSlip())
     bcs = {"x-": side[0], "x+": side[1], "z-": side[0], "z+": side[1],
            "y-": Inlet(speed=float(inlet_velocity)), "y+": PressureOutlet(p=0.0)}
     grid = StaggeredGrid(tuple(cells), tuple(lengths), tuple(origin), halo=2)
-    cg = CoupledGas(system, grid, bcs, rho=rho, mu=mu, gravity=gravity, **kw)
+    cg = CoupledGas(system, grid, bcs, rho=rho, mu=mu, gravity=gravity,
+                    superficial_inlets={"y-": float(inlet_velocity)}, **kw)
     cg.gas.set_velocity(lambda x, y, z: (0.0 * x, float(inlet_velocity) + 0.0 * x, 0.0 * x))
     return cg
-
-
-def set_inlet_velocity(cg: CoupledGas, side: str, speed: float) -> None:
-    """Change the speed of an :class:`Inlet` side of a CoupledGas (recomputes the boundary
-    values; the interior adjusts in the next projection)."""
-    bc = cg.gas.bc
-    old = bc.bcs[side]
-    if not isinstance(old, Inlet):
-        raise CaseError("gas.bcs", f"side {side} is not an inlet")
-    bc.bcs[side] = Inlet(speed=float(speed), tangential=old.tangential)
-    bc._precompute()
-    cg.gas.fill_halos()
