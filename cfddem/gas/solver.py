@@ -201,7 +201,9 @@ class GasSolver:
     def step(self, dt: float, *, source=None, drag_K=None, drag_Up=None) -> GasStepInfo:
         """Advance by dt.  source: explicit force density S [N/m3]; drag_K [N s/m4] >= 0 and
         drag_Up [m/s]: implicit drag ``-K (u - U_p)``; each a tuple of three interior face
-        arrays of shapes (nx+1,ny,nz), (nx,ny+1,nz), (nx,ny,nz+1)."""
+        arrays of shapes (nx+1,ny,nz), (nx,ny+1,nz), (nx,ny,nz+1).  In a periodic direction
+        face n is face 0: the values given for face 0 are used, those for face n ignored.
+        Faces with a prescribed normal velocity (walls, inlets) are not updated."""
         dt = float(dt)
         self._visc_fail = ""
         if not dt > 0:
