@@ -49,6 +49,7 @@ def test_normal_pp_collision(e_n):
         return float(v[1, 0] - v[0, 0])
 
     dur, vb, va = _run_collision(s, _gap_pp, vrel, tc)
+    print(f"pp e_n={e_n}: measured e_n {-va / vb:.5f}, t_c/t_c,input {dur / tc:.5f}")
     assert -va / vb == pytest.approx(e_n, rel=5e-3)
     assert dur == pytest.approx(tc, rel=1e-2)
     assert set(s.ids) == set(ids)
@@ -62,6 +63,7 @@ def test_normal_wall_collision(e_n):
                        dt=tc / 1000)
     s.add_particles([[0, R + 1e-5, 0]], [[0, -0.3, 0]], R, RHO)
     dur, vb, va = _run_collision(s, lambda s: float(s.pos[0, 1] - R), lambda s: float(s.vel[0, 1]), tc)
+    print(f"pw e_n={e_n}: measured e_n {-va / vb:.5f}, t_c/t_c,input {dur / tc:.5f}")
     assert -va / vb == pytest.approx(e_n, rel=5e-3)
     assert dur == pytest.approx(tc, rel=1e-2)
     # the wall felt the reaction only during contact; afterwards it is free again
@@ -86,6 +88,7 @@ def test_oblique_sticking_wall_impact_returns_e_t(e_t):
     u0 = u_t(s)
     dur, vb, va = _run_collision(s, lambda s: float(s.pos[0, 1] - R), lambda s: float(s.vel[0, 1]), tc)
     u1 = u_t(s)
+    print(f"pw e_t={e_t}: measured {(-u1 / u0).tolist()}")
     assert np.allclose(-u1 / u0, e_t, rtol=1e-2)
     assert -va / vb == pytest.approx(0.9, rel=5e-3)
 
@@ -109,6 +112,7 @@ def test_oblique_sticking_pp_impact_returns_e_t():
     u0 = u_t(s)
     _run_collision(s, _gap_pp, lambda s: 0.0, tc)
     u1 = u_t(s)
+    print(f"pp e_t={e_t}: measured {-np.dot(u1, u0) / np.dot(u0, u0):.5f}")
     assert -np.dot(u1, u0) / np.dot(u0, u0) == pytest.approx(e_t, rel=1e-2)
     # no component out of the original tangential direction beyond the rotation of n
     assert np.linalg.norm(u1 + e_t * u0) < 2e-2 * np.linalg.norm(u0)

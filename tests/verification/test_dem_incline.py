@@ -43,6 +43,7 @@ def test_at_rest_below_rolling_friction():
     theta = math.atan(0.6 * MU_R)
     t, v, w, x = _incline(theta)
     # a free-rolling sphere would have reached 5/7 g sin(theta) t = 0.026 m/s
+    print(f"rest: max |v| after 0.05 s = {np.max(np.abs(v[t > 0.05])):.3g} m/s, drift {abs(x[-1] - x[len(x) // 5]):.3g} m")
     assert np.max(np.abs(v[t > 0.05])) < 1e-6
     assert np.max(np.abs(w[t > 0.05])) < 1e-12
     assert abs(x[-1] - x[len(x) // 5]) < 1e-9
@@ -55,6 +56,7 @@ def test_rolling_below_sliding_threshold(tan_theta):
     t, v, w, x = _incline(theta)
     a = _accel(t, v)
     a_th = 5.0 / 7.0 * G * (math.sin(theta) - MU_R * math.cos(theta))
+    print(f"rolling tan={tan_theta}: a/a_theory = {a / a_th:.5f}")
     assert a == pytest.approx(a_th, rel=1e-2)
     # rolling without slipping: v = -R w_z
     assert np.allclose(v[t > 0.05], -R * w[t > 0.05], rtol=2e-3)
@@ -67,5 +69,6 @@ def test_sliding_above_threshold(tan_theta):
     t, v, w, x = _incline(theta)
     a = _accel(t, v)
     a_th = G * (math.sin(theta) - MU * math.cos(theta))
+    print(f"sliding tan={tan_theta}: a/a_theory = {a / a_th:.5f}")
     assert a == pytest.approx(a_th, rel=1e-2)
     assert np.all(v[t > 0.05] > -R * w[t > 0.05] * 1.01)  # slipping
