@@ -7,8 +7,8 @@ floor wall at y = 0 through which the gas enters uniformly (a velocity inlet ove
 bottom: an ideal distributor plate that the particles cannot pass), pressure outlet on top
 (:func:`cfddem.coupling.exchange.column_gas`).  The bed is poured and settled with the gas at
 rest, then the superficial gas velocity U is raised in steps; at each step the pressure drop
-``dp = <p(first cell row)> - p_out - rho_g |g| (y_out - y_0)`` (the gas's own hydrostatic part
-removed) is averaged over the second half of the step.
+``dp = p_b - p_out - rho_g |g| (y_out - y_b)`` (p_b the pressure extrapolated to the
+distributor face; the gas's own hydrostatic part removed) is averaged over the second half of the step.
 
 Expected (physics.md section 4): below the minimum fluidisation velocity the fixed-bed
 pressure drop of the closure, ``dp = L (1 - eps) beta(eps, Re) U / eps^2 ...`` (rising with
@@ -44,10 +44,10 @@ RHO_G, MU, G = 1.2, 1.8e-5, 9.81
 
 
 def build_column(n_particles=1000, d=2e-3, rho_p=2550.0, closure="beetstra", cells=(3, 16, 3), h=6e-3,
-                 k_n=50.0, dt=5e-5, coupling_interval=10, seed=0):
+                 k_n=50.0, dt=5e-5, coupling_interval=10, seed=0, e_n=0.9):
     """Particles placed at random (no overlaps) in the lower part of the column, at rest."""
     Lx, Ly, Lz = cells[0] * h, cells[1] * h, cells[2] * h
-    law = LinearContact(k_n=k_n, e_n=0.9, e_t=0.5, mu=0.3)
+    law = LinearContact(k_n=k_n, e_n=e_n, e_t=0.5, mu=0.3)
     walls = [PlaneWall(contact=law, point=(0.0, 0.0, 0.0), normal=(0.0, 1.0, 0.0), name="floor"),
              PlaneWall(contact=law, point=(0.0, Ly, 0.0), normal=(0.0, -1.0, 0.0), name="lid")]
     sys_ = ParticleSystem(pp=law, walls=walls, dt=dt, gravity=(0.0, -G, 0.0),
@@ -70,12 +70,14 @@ def build_column(n_particles=1000, d=2e-3, rho_p=2550.0, closure="beetstra", cel
 
 
 def pressure_drop(cg) -> float:
-    """<p(row 0)> - p_out - rho_g g (y_out - y_0): the pressure drop carried by the bed."""
+    """Pressure at the distributor minus the outlet pressure, less the gas's own hydrostatic
+    part: ``p_b - p_out - rho_g g (y_out - y_b)`` with ``p_b = <p_0 - (h/2) (p_1 - p_0)/h>``
+    (the first cell row extrapolated to the inlet face, see exchange.py step 5b)."""
     grid = cg.grid
-    p0 = float(cg.gas.p.interior[:, 0, :].mean())
-    y0 = grid.centres(1)[0]
+    p = cg.gas.p.interior
+    pb = float((p[:, 0, :] - 0.5 * (p[:, 1, :] - p[:, 0, :])).mean())
     y_out = grid.origin[1] + grid.lengths[1]
-    return p0 - 0.0 - RHO_G * G * (y_out - y0)
+    return pb - 0.0 - RHO_G * G * (y_out - grid.origin[1])
 
 
 def bed_porosity_seen(sys_, cg) -> float:

@@ -46,14 +46,18 @@ Scheme (one coupling step, at particle time t; superscript n+1 = the gas after i
       in the cell next to a wall whose boundary face is not a gas unknown G is only half the
       inner face gradient, and a bed resting on the floor would lose half of its buoyancy
       there (measured: the bottom layer stayed on the distributor above U_mf).
-   b. *correction pair* at ``p^n`` (the pressure before the gas step): the particles also
-      receive ``-V_a [I_f(g^n) - I_c(G^n)]_a`` (I_f: face interpolation with the wall fold,
-      so a particle within half a cell of a wall sees the first interior face's gradient)
-      and the gas the explicit source ``S_f = (phi^face_f - phi^avg_f) g^n_f`` [N/m3] with
-      ``phi^face_f = D(V_a)_f / V_cell`` (face deposition).  By the transpose identities the
-      two sum to zero exactly.  Together the particles feel
-      ``-V_a [I_f(g^n) + I_c(G^{n+1} - G^n)] = -V_a I_f(g^{n+1}) + O(p^{n+1} - p^n)``:
-      the standard trilinear pressure force, exact in a steady state.
+   b. *boundary half-cells*: a cell next to a boundary face that is not a gas unknown (a
+      wall or an inlet; not an outlet or a periodic side) has its outer half outside every
+      gas momentum control volume, so 5a gives its particles only half the gradient (a bed
+      on a distributor would lose half its buoyancy in the bottom cell, and its bottom layer
+      stays on the floor above U_mf: measured).  The boundary half-cell is added to the
+      first interior face's control volume: its particles receive ``-V_a w_a0 g_1/2``
+      (``g_1`` the first interior face gradient at ``p^{n+1}``) and the gas on face 1 the
+      explicit source ``(eps_0/2)(-g^n_1 + rho g_c)`` (its pressure force at ``p^n`` and its
+      weight, so a hydrostatic rest state stays exact; the rotating-frame terms of the
+      half-cell are left out).  The boundary supplies these forces, as it supplies the
+      pressure on the gas next to it; in a fluidised bed the pressure extrapolated to the
+      distributor, ``p_0 - (h/2) g_1``, then carries the whole bed weight.
 
 6. ``system.ext_force = J/dt_g + F^p``, constant over the next N particle steps (the
    velocity-Verlet kicks apply it for exactly N dt = dt_g).
@@ -63,7 +67,8 @@ t the gas sits at t + dt_g and the particles catch up during the interval.  The 
 change enters the gas continuity equation through ``set_porosity`` (eps^{n+1} - eps^n)/dt_g.
 
 What is conserved: the drag and pressure exchanges exactly (``last_exchange`` records both
-sides; a cell clipped by ``eps_floor`` breaks part 5a there).  The gas solver's bounded advection form (see :mod:`cfddem.gas.momentum`) carries
+sides; a cell clipped by ``eps_floor`` breaks part 5a there); the boundary half-cell forces
+of 5b come from the walls and inlets (``particle_boundary_pressure_impulse``).  The gas solver's bounded advection form (see :mod:`cfddem.gas.momentum`) carries
 a term ``u (eps^{n+1}_f - 2 eps^n_f + eps^{n-1}_f)`` (a second time difference of the
 porosity) and the pressure solver's residual, so the *total* momentum of a closed periodic
 box is conserved to that level (1e-12 relative when the particles barely move, see
@@ -177,7 +182,15 @@ class CoupledGas:
         # time average of the cell-centred gas velocity (write_measurements)
         self._avg_sum = np.zeros(grid.shape + (3,))
         self._avg_time = 0.0
-        # updated-face masks: which faces of each component the momentum equation updates
+        # updated-face masks: which faces of each component the momentum equation updates;
+        # boundary sides whose boundary face is not a gas unknown (walls, inlets)
+        self._bside = []
+        for c in range(3):
+            lo, hi = self.gas.bc.face_range[c]
+            per = self.gas.bc.periodic[c]
+            self._bside.append((not per and lo == 1, not per and hi == grid.shape[c]))
+        self._has_boundary = [a or b for a, b in self._bside]
+        self._g = tuple(float(v) for v in gravity)
         self._upd = []
         for c in range(3):
             lo, hi = self.gas.bc.face_range[c]
@@ -270,14 +283,10 @@ class CoupledGas:
             vc = grid.cell_volume
             drag_K = tuple(a / vc for a in DK)
             drag_Up = tuple(np.divide(b, a, out=np.zeros_like(a), where=a > 0) for a, b in zip(DK, DKv))
-            # pressure-force correction pair at p^n (module docstring, step 5b)
-            g_old = self._face_gradients()
-            G_old = self._centre_from_faces(g_old)
-            phi_face = [a / vc for a in plan.deposit_faces(np.repeat(vol[:, None], 3, axis=1))]
-            phi_avg = [1.0 - ef for ef in self._face_porosity()]
-            source = tuple((pf - pa) * g for pf, pa, g in zip(phi_face, phi_avg, g_old))
         else:
-            drag_K = drag_Up = source = None
+            drag_K = drag_Up = None
+        # boundary half-cells (module docstring, step 5b), explicit at p^n
+        source = self._boundary_source()
         # --- 3. gas step ------------------------------------------------------------------
         t0 = _time.perf_counter()
         info = gas.step(dtg, source=source, drag_K=drag_K, drag_Up=drag_Up)
@@ -294,11 +303,15 @@ class CoupledGas:
         if n:
             u1 = plan.interpolate_faces(gas.u.interior, gas.v.interior, gas.w.interior)
             Fd = Keff[:, None] * (u1 - vel)
-            G = self.centre_pressure_gradient()
-            Fp = -vol[:, None] * plan.interpolate_faces(*g_old)
+            g_new = self._face_gradients()
+            G = self._centre_from_faces(g_new)
+            Gb = self._centre_from_faces(g_new, boundary=True)
+            Fp = np.empty((n, 3))
+            Fb = np.empty((n, 3))
             for c in range(3):
-                Fp[:, c] -= vol * plan.interpolate(G[c] - G_old[c], "ccc")
-            sys_.ext_force[:] = Fd + Fp
+                Fp[:, c] = -vol * plan.interpolate(G[c], "ccc")
+                Fb[:, c] = -vol * plan.interpolate(Gb[c], "ccc") if self._has_boundary[c] else 0.0
+            sys_.ext_force[:] = Fd + Fp + Fb
             self._last["drag_power"] = float(np.sum(Fd * (u1 - vel)))
             self._last["max_drag_force"] = float(np.max(np.sqrt(np.sum(Fd**2, axis=1))))
             # both sides of the exchange (momentum received), for conservation checks: the
@@ -308,9 +321,8 @@ class CoupledGas:
             self.last_exchange = {"particle_drag_impulse": dtg * Fd.sum(axis=0),
                                   "gas_drag_impulse": -gas_drag,
                                   "particle_pressure_impulse": dtg * Fp.sum(axis=0),
-                                  "gas_solid_pressure_impulse": self._solid_pressure_impulse(eps, dtg)
-                                  + np.array([dtg * vc * float(np.sum(source[c] * self._upd_mask(c)))
-                                              for c in range(3)])}
+                                  "gas_solid_pressure_impulse": self._solid_pressure_impulse(eps, dtg),
+                                  "particle_boundary_pressure_impulse": dtg * Fb.sum(axis=0)}
         else:
             self._last["drag_power"] = 0.0
             self._last["max_drag_force"] = 0.0
@@ -397,7 +409,49 @@ class CoupledGas:
         the transpose of the gas's face porosity weighting ``eps_f = (eps_{i-1} + eps_i)/2``."""
         return self._centre_from_faces(self._face_gradients())
 
-    def _centre_from_faces(self, grads):
+    def _boundary_source(self):
+        """Explicit gas source [N/m3] on the first updated face next to each boundary face that
+        is not a gas unknown: the pressure force and weight of the gas in the boundary
+        half-cell, ``S = (eps_b/2) (-g^n_1 + rho g_c)`` (eps_b the boundary cell's porosity,
+        g^n_1 the face gradient of the current pressure).  None if the box has no such side."""
+        if not any(self._has_boundary):
+            return None
+        grads = self._face_gradients()
+        h = self.grid.halo
+        e = self.gas.eps.data
+        core = [slice(h, h + n) for n in self.grid.shape]
+        out = []
+        for c, g in enumerate(grads):
+            S = np.zeros_like(g)
+            n = self.grid.shape[c]
+            for lower, on in zip((True, False), self._bside[c]):
+                if not on:
+                    continue
+                f = 1 if lower else n - 1
+                cell = 0 if lower else n - 1
+                sl = list(core)
+                sl[c] = slice(h + cell, h + cell + 1)
+                eb = e[tuple(sl)]
+                S[_sl(c, slice(f, f + 1))] += 0.5 * eb * (-g[_sl(c, slice(f, f + 1))] + self.rho * self._g[c])
+            out.append(S)
+        return tuple(out)
+
+    def _centre_from_faces(self, grads, boundary=False):
+        """G_i = (g_i + g_{i+1})/2 (module docstring, step 5a); ``boundary``: instead the
+        boundary half-cell part (step 5b): g_1/2 in the first cell next to a boundary face that
+        is not a gas unknown (g_{n-1}/2 in the last), 0 elsewhere."""
+        if boundary:
+            out = []
+            for c, g in enumerate(grads):
+                n = self.grid.shape[c]
+                G = np.zeros(self.grid.shape)
+                lo, hi = self._bside[c]
+                if lo:
+                    G[_sl(c, 0)] += 0.5 * g[_sl(c, 1)]
+                if hi:
+                    G[_sl(c, n - 1)] += 0.5 * g[_sl(c, n - 1)]
+                out.append(G)
+            return out
         out = []
         for c, g in enumerate(grads):
             n = self.grid.shape[c]

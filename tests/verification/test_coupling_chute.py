@@ -1,0 +1,77 @@
+"""Chute smoke test: the coupled gas built by build_coupled_gas runs a few coupling intervals
+inside the lead's Simulation and returns finite fields; the outputs carry the gas."""
+
+import h5py
+import numpy as np
+import pytest
+
+from cfddem.config import load_case
+from cfddem.coupling.exchange import build_coupled_gas, coupling_diagnostics
+from cfddem.simulation import Simulation
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    import numba
+
+    n = numba.get_num_threads()
+    numba.set_num_threads(1)
+    yield
+    numba.set_num_threads(n)
+
+
+def test_chute_runs_coupled(root, tmp_path):
+    case = load_case(root / "cases" / "chute_16rpm",
+                     overrides=["gas.enabled=true", "time.end_time=0.005", "measurements.start_time=0"])
+    sim = Simulation(case, tmp_path / "out", echo=False, progress=False, threads=1)
+    summary = sim.run()
+    assert summary.status == "done" and abs(summary.time - 0.005) < 1e-9
+    cg = sim.gas
+    assert cg is not None and cg.n_couplings == 50  # 500 particle steps / 10
+    # gas domain and boundary conditions from the case
+    g = cg.grid
+    assert g.shape == (16, 15, 150)
+    np.testing.assert_allclose(g.origin, (0.0, 0.0, -0.1))
+    np.testing.assert_allclose(g.lengths, (0.08, 0.045, 0.9))
+    kinds = cg.gas.bc.kinds
+    assert (kinds["x-"], kinds["y-"], kinds["y+"], kinds["z-"], kinds["z+"]) == (
+        "noslip", "noslip", "velocity", "inlet", "outlet")
+    for a in (cg.gas.u.data, cg.gas.v.data, cg.gas.w.data, cg.gas.p.data):
+        assert np.all(np.isfinite(a))
+    row = cg.series_row()
+    assert all(np.isfinite(v) for v in row.values())
+    assert sim.system.n > 0 and row["min_porosity"] < 1.0  # the sluice fed particles into the gas
+    # co-flow inlet at the sluice feed velocity; the lid cross-wind is -Omega x (r - r_axis)
+    w_in = cg.gas.bc.boundary_velocity("z-", 2)
+    assert 0.1 < float(np.mean(w_in)) < 2.0
+    v = cg.vtk_fields()
+    assert v["cell_data"]["velocity"].shape == (16, 15, 150, 3)
+    with h5py.File(tmp_path / "out" / "results.h5", "r") as f:
+        assert "gas_pressure_iterations" in f["series"] and "particle_momentum_z" in f["series"]
+        assert f["measurements/gas/mean_velocity"].shape == (16, 15, 150, 3)
+
+
+def test_chute_coupling_diagnostics(root):
+    case = load_case(root / "cases" / "chute_16rpm", overrides=["gas.enabled=true"])
+    lines = coupling_diagnostics(case)
+    text = "\n".join(lines)
+    assert "cell volume / particle volume" in text and "relaxation time" in text and "CFL" in text
+    # 5 x 3 x 6 mm cells hold 6.4 particle volumes of 3 mm beads
+    assert "= 6.37" in text
+    off = load_case(root / "cases" / "chute_16rpm")
+    assert coupling_diagnostics(off) == ["gas: off"]
+
+
+def test_build_coupled_gas_inlet_default_and_lid(root):
+    from cfddem.particles.system import ParticleSystem
+    from cfddem.simulation import contact_law
+
+    for lid, kind in (("slip", "freeslip"), ("wall", "noslip"), ("crosswind", "velocity")):
+        case = load_case(root / "cases" / "chute_16rpm",
+                         overrides=["gas.enabled=true", f"gas.lid='{lid}'", "gas.inlet_velocity=0.7",
+                                    "gas.cells=[4, 3, 10]"])
+        sys_ = ParticleSystem(pp=contact_law(case.resolved["contact"]["particle_particle"]), walls=[], dt=1e-5)
+        cg = build_coupled_gas(case, sys_)
+        assert cg.gas.bc.kinds["y+"] == kind
+        np.testing.assert_allclose(cg.gas.bc.boundary_velocity("z-", 2)[2:-2, 2:-2], 0.7)
+        assert cg.advance(20).ok
