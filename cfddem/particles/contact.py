@@ -186,14 +186,14 @@ def linear_law(kn, cn, kt, ct, mu, meff, dn, nx, ny, nz, vx, vy, vz, hx, hy, hz,
 
 
 @kernel(inline="always")
-def pair_law(P, row, meff, reff, dn, nx, ny, nz, vx, vy, vz, hx, hy, hz, dt_hist):
-    """Dispatch on ``P[row, P_MODEL]`` (0: linear spring-dashpot); ``P`` is a table of parameter
-    rows indexed in place (no array views inside parallel loops).  ``reff`` = R* is unused by the
-    linear law and is there for Hertz-Mindlin.  Same return as :func:`linear_law`."""
+def pair_law(model, kn, cn, kt, ct, mu, meff, reff, dn, nx, ny, nz, vx, vy, vz, hx, hy, hz, dt_hist):
+    """Dispatch on the model id (0: linear spring-dashpot, parameters k_n, c_n, k_t, c_t, mu from
+    the parameter row).  ``reff`` = R* is unused by the linear law and is there for Hertz-Mindlin.
+    Scalars only: inlined functions taking arrays cost refcount traffic in the hot loops.
+    Same return as :func:`linear_law`."""
     hx, hy, hz = project_history(hx, hy, hz, nx, ny, nz)
     # model 0 (only model so far)
-    return linear_law(P[row, P_KN], P[row, P_CN], P[row, P_KT], P[row, P_CT], P[row, P_MU],
-                      meff, dn, nx, ny, nz, vx, vy, vz, hx, hy, hz, dt_hist)
+    return linear_law(kn, cn, kt, ct, mu, meff, dn, nx, ny, nz, vx, vy, vz, hx, hy, hz, dt_hist)
 
 
 @kernel(inline="always")

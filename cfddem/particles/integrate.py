@@ -32,9 +32,10 @@ import numpy as np
 
 from cfddem._jit import kernel, parallel_kernel, prange
 from cfddem.particles._twin import serial_twin
-from cfddem.particles.contact import P_MUR, pair_law, rolling_torque_limited
-from cfddem.particles.neighbours import _min_image
-from cfddem.particles.walls import wall_contact
+from cfddem.particles.contact import (P_CN, P_CT, P_KN, P_KT, P_MODEL, P_MU, P_MUR, pair_law,
+                                      rolling_torque_limited)
+from cfddem.particles.neighbours import _min_image, _wrap
+from cfddem.particles.walls import wall_contact, wall_contact_s
 
 
 def rotation_matrix(axis_vec, angle_per_unit: float, h: float) -> np.ndarray:
@@ -50,14 +51,14 @@ def rotation_matrix(axis_vec, angle_per_unit: float, h: float) -> np.ndarray:
 
 
 @kernel(inline="always")
-def _half_kick(vx, vy, vz, ax, ay, az, h, rotating, R):
+def _half_kick(vx, vy, vz, ax, ay, az, h, rotating, r00, r01, r02, r10, r11, r12, r20, r21, r22):
     vx += 0.5 * h * ax
     vy += 0.5 * h * ay
     vz += 0.5 * h * az
     if rotating:
-        ux = R[0, 0] * vx + R[0, 1] * vy + R[0, 2] * vz
-        uy = R[1, 0] * vx + R[1, 1] * vy + R[1, 2] * vz
-        uz = R[2, 0] * vx + R[2, 1] * vy + R[2, 2] * vz
+        ux = r00 * vx + r01 * vy + r02 * vz
+        uy = r10 * vx + r11 * vy + r12 * vz
+        uz = r20 * vx + r21 * vy + r22 * vz
         vx, vy, vz = ux, uy, uz
     vx += 0.5 * h * ax
     vy += 0.5 * h * ay
@@ -65,29 +66,54 @@ def _half_kick(vx, vy, vz, ax, ay, az, h, rotating, R):
     return vx, vy, vz
 
 
-@kernel(inline="always")
-def _ext(ext_f, ext_t, i, has_ext):
-    if has_ext:
-        return ext_f[i, 0], ext_f[i, 1], ext_f[i, 2], ext_t[i, 0], ext_t[i, 1], ext_t[i, 2]
-    return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-
-
 @parallel_kernel
 def kick_drift(n, pos, vel, omg, force, torque, mass, inertia, ext_f, ext_t, has_ext, dt, rotating,
                Rv, Rw, periodic_len, plo, ref):
     """Opening half kick and drift; wraps periodic axes; returns max |r - r_ref|^2."""
     h = 0.5 * dt
+    rv00 = Rv[0, 0]
+    rv01 = Rv[0, 1]
+    rv02 = Rv[0, 2]
+    rv10 = Rv[1, 0]
+    rv11 = Rv[1, 1]
+    rv12 = Rv[1, 2]
+    rv20 = Rv[2, 0]
+    rv21 = Rv[2, 1]
+    rv22 = Rv[2, 2]
+    rw00 = Rw[0, 0]
+    rw01 = Rw[0, 1]
+    rw02 = Rw[0, 2]
+    rw10 = Rw[1, 0]
+    rw11 = Rw[1, 1]
+    rw12 = Rw[1, 2]
+    rw20 = Rw[2, 0]
+    rw21 = Rw[2, 1]
+    rw22 = Rw[2, 2]
     m2 = 0.0
     for i in prange(n):
         im = 1.0 / mass[i]
         ii = 1.0 / inertia[i]
-        efx, efy, efz, etx, ety, etz = _ext(ext_f, ext_t, i, has_ext)
+        efx = 0.0
+        efy = 0.0
+        efz = 0.0
+        etx = 0.0
+        ety = 0.0
+        etz = 0.0
+        if has_ext:
+            efx = ext_f[i, 0]
+            efy = ext_f[i, 1]
+            efz = ext_f[i, 2]
+            etx = ext_t[i, 0]
+            ety = ext_t[i, 1]
+            etz = ext_t[i, 2]
         vx, vy, vz = _half_kick(vel[i, 0], vel[i, 1], vel[i, 2],
                                 (force[i, 0] + efx) * im, (force[i, 1] + efy) * im,
-                                (force[i, 2] + efz) * im, h, rotating, Rv)
+                                (force[i, 2] + efz) * im, h, rotating, 
+                                rv00, rv01, rv02, rv10, rv11, rv12, rv20, rv21, rv22)
         wx, wy, wz = _half_kick(omg[i, 0], omg[i, 1], omg[i, 2],
                                 (torque[i, 0] + etx) * ii, (torque[i, 1] + ety) * ii,
-                                (torque[i, 2] + etz) * ii, h, rotating, Rw)
+                                (torque[i, 2] + etz) * ii, h, rotating, 
+                                rw00, rw01, rw02, rw10, rw11, rw12, rw20, rw21, rw22)
         vel[i, 0] = vx
         vel[i, 1] = vy
         vel[i, 2] = vz
@@ -97,12 +123,9 @@ def kick_drift(n, pos, vel, omg, force, torque, mass, inertia, ext_f, ext_t, has
         x = pos[i, 0] + dt * vx
         y = pos[i, 1] + dt * vy
         z = pos[i, 2] + dt * vz
-        if periodic_len[0] > 0.0:
-            x -= periodic_len[0] * math.floor((x - plo[0]) / periodic_len[0])
-        if periodic_len[1] > 0.0:
-            y -= periodic_len[1] * math.floor((y - plo[1]) / periodic_len[1])
-        if periodic_len[2] > 0.0:
-            z -= periodic_len[2] * math.floor((z - plo[2]) / periodic_len[2])
+        x = _wrap(x, plo[0], periodic_len[0])
+        y = _wrap(y, plo[1], periodic_len[1])
+        z = _wrap(z, plo[2], periodic_len[2])
         pos[i, 0] = x
         pos[i, 1] = y
         pos[i, 2] = z
@@ -123,6 +146,12 @@ def pair_forces(npairs, pi, pj, pos, vel, omg, radius, mass, inertia, params, pe
     updates the tangential history (zero when not touching).  Returns the max overlap ratio
     d_n / min(R_a, R_b)."""
     mur = params[0, P_MUR]
+    model = params[0, P_MODEL]
+    kn = params[0, P_KN]
+    cn = params[0, P_CN]
+    kt = params[0, P_KT]
+    ct = params[0, P_CT]
+    mu = params[0, P_MU]
     ovmax = 0.0
     for k in prange(npairs):
         a = pi[k]
@@ -160,7 +189,7 @@ def pair_forces(npairs, pi, pj, pos, vel, omg, radius, mass, inertia, params, pe
         vy = vel[a, 1] - vel[b, 1] + sz * nx - sx * nz
         vz = vel[a, 2] - vel[b, 2] + sx * ny - sy * nx
         fx, fy, fz, tx, ty, tz, hx, hy, hz, fnabs = pair_law(
-            params, 0, meff, ra * rb / rs, dn, nx, ny, nz, vx, vy, vz,
+            model, kn, cn, kt, ct, mu, meff, ra * rb / rs, dn, nx, ny, nz, vx, vy, vz,
             hist[k, 0], hist[k, 1], hist[k, 2], dt_hist)
         hist[k, 0] = hx
         hist[k, 1] = hy
@@ -208,6 +237,24 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
     max |r - r_ref|^2 after the fused drift or 0).
     """
     h = 0.5 * dt
+    rv00 = Rv[0, 0]
+    rv01 = Rv[0, 1]
+    rv02 = Rv[0, 2]
+    rv10 = Rv[1, 0]
+    rv11 = Rv[1, 1]
+    rv12 = Rv[1, 2]
+    rv20 = Rv[2, 0]
+    rv21 = Rv[2, 1]
+    rv22 = Rv[2, 2]
+    rw00 = Rw[0, 0]
+    rw01 = Rw[0, 1]
+    rw02 = Rw[0, 2]
+    rw10 = Rw[1, 0]
+    rw11 = Rw[1, 1]
+    rw12 = Rw[1, 2]
+    rw20 = Rw[2, 0]
+    rw21 = Rw[2, 1]
+    rw22 = Rw[2, 2]
     bad = 0
     ovmax = 0.0
     m2 = 0.0
@@ -219,7 +266,19 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
         ty = 0.0
         tz = 0.0
         r = radius[i]
-        efx, efy, efz, etx, ety, etz = _ext(ext_f, ext_t, i, has_ext)
+        efx = 0.0
+        efy = 0.0
+        efz = 0.0
+        etx = 0.0
+        ety = 0.0
+        etz = 0.0
+        if has_ext:
+            efx = ext_f[i, 0]
+            efy = ext_f[i, 1]
+            efz = ext_f[i, 2]
+            etx = ext_t[i, 0]
+            ety = ext_t[i, 1]
+            etz = ext_t[i, 2]
         for k in range(first_start[i], first_start[i + 1]):
             fx += pf[k, 0]
             fy += pf[k, 1]
@@ -248,6 +307,8 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
         z = pos[i, 2]
         m = mass[i]
         inert = inertia[i]
+        im = 1.0 / m
+        ii = 1.0 / inert
         vx = vel[i, 0]
         vy = vel[i, 1]
         vz = vel[i, 2]
@@ -256,7 +317,10 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
         wz = omg[i, 2]
         anyroll = False
         for w in range(nw):
-            ov, nx, ny, nz, qx, qy, qz = wall_contact(wgeom, w, x, y, z, r)
+            ov, nx, ny, nz, qx, qy, qz = wall_contact_s(
+                wgeom[w, 0], wgeom[w, 1], wgeom[w, 2], wgeom[w, 3], wgeom[w, 4], wgeom[w, 5],
+                wgeom[w, 6], wgeom[w, 7], wgeom[w, 8], wgeom[w, 9], wgeom[w, 10], wgeom[w, 11],
+                wgeom[w, 12], wgeom[w, 13], wgeom[w, 14], x, y, z, r)
             if ov > 0.0:
                 # n_ab from the particle (a) towards the wall (b)
                 ax_ = -nx
@@ -269,7 +333,8 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
                 rvy = vy - wgeom[w, 17] + sz * ax_ - sx * az_
                 rvz = vz - wgeom[w, 18] + sx * ay_ - sy * ax_
                 cfx, cfy, cfz, ctx, cty, ctz, hx, hy, hz, fnabs = pair_law(
-                    wpar, w, m, r, ov, ax_, ay_, az_, rvx, rvy, rvz,
+                    wpar[w, P_MODEL], wpar[w, P_KN], wpar[w, P_CN], wpar[w, P_KT], wpar[w, P_CT],
+                    wpar[w, P_MU], m, r, ov, ax_, ay_, az_, rvx, rvy, rvz,
                     whist[i, w, 0], whist[i, w, 1], whist[i, w, 2], dt_hist)
                 whist[i, w, 0] = hx
                 whist[i, w, 1] = hy
@@ -350,12 +415,12 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
         torque[i, 1] = ty
         torque[i, 2] = tz
         if kick:
-            im = 1.0 / m
-            ii = 1.0 / inert
             vx, vy, vz = _half_kick(vx, vy, vz, (fx + efx) * im, (fy + efy) * im,
-                                    (fz + efz) * im, h, rotating, Rv)
+                                    (fz + efz) * im, h, rotating, 
+                                rv00, rv01, rv02, rv10, rv11, rv12, rv20, rv21, rv22)
             wx, wy, wz = _half_kick(wx, wy, wz, (tx + etx) * ii, (ty + ety) * ii,
-                                    (tz + etz) * ii, h, rotating, Rw)
+                                    (tz + etz) * ii, h, rotating, 
+                                rw00, rw01, rw02, rw10, rw11, rw12, rw20, rw21, rw22)
             vel[i, 0] = vx
             vel[i, 1] = vy
             vel[i, 2] = vz
@@ -368,12 +433,14 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
             bad += 1
         d2 = 0.0
         if drift_next:
-            im2 = 1.0 / m
-            ii2 = 1.0 / inert
+            im2 = im
+            ii2 = ii
             ux, uy, uz = _half_kick(vx, vy, vz, (fx + efx) * im2, (fy + efy) * im2,
-                                    (fz + efz) * im2, h, rotating, Rv)
+                                    (fz + efz) * im2, h, rotating, 
+                                rv00, rv01, rv02, rv10, rv11, rv12, rv20, rv21, rv22)
             sx2, sy2, sz2 = _half_kick(wx, wy, wz, (tx + etx) * ii2, (ty + ety) * ii2,
-                                       (tz + etz) * ii2, h, rotating, Rw)
+                                       (tz + etz) * ii2, h, rotating, 
+                                rw00, rw01, rw02, rw10, rw11, rw12, rw20, rw21, rw22)
             vel[i, 0] = ux
             vel[i, 1] = uy
             vel[i, 2] = uz
@@ -383,12 +450,9 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
             xn = x + dt * ux
             yn = y + dt * uy
             zn = z + dt * uz
-            if periodic_len[0] > 0.0:
-                xn -= periodic_len[0] * math.floor((xn - plo[0]) / periodic_len[0])
-            if periodic_len[1] > 0.0:
-                yn -= periodic_len[1] * math.floor((yn - plo[1]) / periodic_len[1])
-            if periodic_len[2] > 0.0:
-                zn -= periodic_len[2] * math.floor((zn - plo[2]) / periodic_len[2])
+            xn = _wrap(xn, plo[0], periodic_len[0])
+            yn = _wrap(yn, plo[1], periodic_len[1])
+            zn = _wrap(zn, plo[2], periodic_len[2])
             pos[i, 0] = xn
             pos[i, 1] = yn
             pos[i, 2] = zn

@@ -121,9 +121,31 @@ def cell_sort(pos, n, lo, size, nc, cell_of, order, cell_start):
 
 @kernel(inline="always")
 def _min_image(d, plen):
+    """Minimum image of a coordinate difference along an axis of period ``plen`` (0: not
+    periodic).  Positions are kept wrapped into the box, so |d| < plen and one shift suffices
+    (comparisons instead of a division and a floor: this sits in the innermost loops)."""
     if plen > 0.0:
-        d -= plen * math.floor(d / plen + 0.5)
+        if d > 0.5 * plen:
+            d -= plen
+        elif d < -0.5 * plen:
+            d += plen
     return d
+
+
+@kernel(inline="always")
+def _wrap(x, lo, plen):
+    """Wrap a coordinate into [lo, lo + plen) (plen 0: not periodic); one period at most per
+    call (a particle moves far less than a box length in one step), else a floor."""
+    if plen > 0.0:
+        if x >= lo + plen:
+            x -= plen
+            if x >= lo + plen:
+                x = lo + (x - lo) - plen * math.floor((x - lo) / plen)
+        elif x < lo:
+            x += plen
+            if x < lo:
+                x = lo + (x - lo) - plen * math.floor((x - lo) / plen)
+    return x
 
 
 @parallel_kernel

@@ -118,18 +118,18 @@ def pack_walls(walls: list[Wall]):
 
 
 @kernel(inline="always")
-def wall_contact(G, w, x, y, z, r):
+def wall_contact_s(kind, g1, g2, g3, g4, g5, g6, g7, g8, g9, g10, g11, g12, g13, g14, x, y, z, r):
     """Contact of a sphere (centre x, y, z, radius r) with wall ``w`` of the geometry table ``G``
     (rows indexed in place: no array views inside parallel loops).
 
+    Scalar arguments: the geometry row's entries 0..14 (see the module docstring).
     Returns (overlap, nx, ny, nz, qx, qy, qz): overlap > 0 means contact, n the unit normal from
     the wall towards the sphere centre, q the contact point on the wall.
     """
-    kind = G[w, 0]
-    px = x - G[w, 1]
-    py = y - G[w, 2]
-    pz = z - G[w, 3]
-    nx, ny, nz = G[w, 4], G[w, 5], G[w, 6]
+    px = x - g1
+    py = y - g2
+    pz = z - g3
+    nx, ny, nz = g4, g5, g6
     h = px * nx + py * ny + pz * nz
     if kind == 0.0:
         if h <= -r or h >= r:
@@ -138,15 +138,15 @@ def wall_contact(G, w, x, y, z, r):
     # rectangle
     if h >= r or h <= -r:
         return -1.0, nx, ny, nz, 0.0, 0.0, 0.0
-    u1 = px * G[w, 7] + py * G[w, 8] + pz * G[w, 9]
-    u2 = px * G[w, 10] + py * G[w, 11] + pz * G[w, 12]
-    h1 = G[w, 13]
-    h2 = G[w, 14]
+    u1 = px * g7 + py * g8 + pz * g9
+    u2 = px * g10 + py * g11 + pz * g12
+    h1 = g13
+    h2 = g14
     c1 = min(max(u1, -h1), h1)
     c2 = min(max(u2, -h2), h2)
-    qx = G[w, 1] + c1 * G[w, 7] + c2 * G[w, 10]
-    qy = G[w, 2] + c1 * G[w, 8] + c2 * G[w, 11]
-    qz = G[w, 3] + c1 * G[w, 9] + c2 * G[w, 12]
+    qx = g1 + c1 * g7 + c2 * g10
+    qy = g2 + c1 * g8 + c2 * g11
+    qz = g3 + c1 * g9 + c2 * g12
     if c1 == u1 and c2 == u2:
         return r - h, nx, ny, nz, qx, qy, qz
     if h < 0.0:
@@ -158,6 +158,14 @@ def wall_contact(G, w, x, y, z, r):
     if d >= r or d == 0.0:
         return -1.0, nx, ny, nz, 0.0, 0.0, 0.0
     return r - d, dx / d, dy / d, dz / d, qx, qy, qz
+
+
+@kernel(inline="always")
+def wall_contact(G, w, x, y, z, r):
+    """:func:`wall_contact_s` with the geometry taken from row ``w`` of the table ``G``."""
+    return wall_contact_s(G[w, 0], G[w, 1], G[w, 2], G[w, 3], G[w, 4], G[w, 5], G[w, 6], G[w, 7],
+                          G[w, 8], G[w, 9], G[w, 10], G[w, 11], G[w, 12], G[w, 13], G[w, 14],
+                          x, y, z, r)
 
 
 @kernel
