@@ -151,47 +151,61 @@ def _wrap(x, lo, plen):
 @parallel_kernel
 def pair_count(pos, radius, n, skin, lo, size, nc, periodic_len, cell_start, counts):
     """counts[i] = number of partners j > i within R_i + R_j + skin (sorted particles)."""
+    # scalars hoisted out of the loops (the compiler cannot prove the output arrays do not
+    # alias these inputs, so it would reload them in the innermost loop)
+    pl0 = periodic_len[0]
+    pl1 = periodic_len[1]
+    pl2 = periodic_len[2]
+    nc0 = nc[0]
+    nc1 = nc[1]
+    nc2 = nc[2]
+    lo0 = lo[0]
+    lo1 = lo[1]
+    lo2 = lo[2]
+    sz0 = size[0]
+    sz1 = size[1]
+    sz2 = size[2]
     for i in prange(n):
         xi = pos[i, 0]
         yi = pos[i, 1]
         zi = pos[i, 2]
         ri = radius[i]
-        cx = min(max(int((xi - lo[0]) / size[0]), 0), nc[0] - 1)
-        cy = min(max(int((yi - lo[1]) / size[1]), 0), nc[1] - 1)
-        cz = min(max(int((zi - lo[2]) / size[2]), 0), nc[2] - 1)
-        me = (cx * nc[1] + cy) * nc[2] + cz
+        cx = min(max(int((xi - lo0) / sz0), 0), nc0 - 1)
+        cy = min(max(int((yi - lo1) / sz1), 0), nc1 - 1)
+        cz = min(max(int((zi - lo2) / sz2), 0), nc2 - 1)
+        me = (cx * nc1 + cy) * nc2 + cz
         cnt = 0
         for ox in range(-1, 2):
             ax = cx + ox
-            if periodic_len[0] > 0.0:
-                if nc[0] < 3 and ox != 0 and (ax < 0 or ax >= nc[0]):
+            if pl0 > 0.0:
+                if nc0 < 3 and ox != 0 and (ax < 0 or ax >= nc0):
                     continue
-                ax = ax % nc[0]
-            elif ax < 0 or ax >= nc[0]:
+                ax = ax % nc0
+            elif ax < 0 or ax >= nc0:
                 continue
             for oy in range(-1, 2):
                 ay = cy + oy
-                if periodic_len[1] > 0.0:
-                    if nc[1] < 3 and oy != 0 and (ay < 0 or ay >= nc[1]):
+                if pl1 > 0.0:
+                    if nc1 < 3 and oy != 0 and (ay < 0 or ay >= nc1):
                         continue
-                    ay = ay % nc[1]
-                elif ay < 0 or ay >= nc[1]:
+                    ay = ay % nc1
+                elif ay < 0 or ay >= nc1:
                     continue
                 for oz in range(-1, 2):
                     az = cz + oz
-                    if periodic_len[2] > 0.0:
-                        if nc[2] < 3 and oz != 0 and (az < 0 or az >= nc[2]):
+                    if pl2 > 0.0:
+                        if nc2 < 3 and oz != 0 and (az < 0 or az >= nc2):
                             continue
-                        az = az % nc[2]
-                    elif az < 0 or az >= nc[2]:
+                        az = az % nc2
+                    elif az < 0 or az >= nc2:
                         continue
-                    c = (ax * nc[1] + ay) * nc[2] + az
+                    c = (ax * nc1 + ay) * nc2 + az
                     if c < me:
                         continue
                     for j in range(max(cell_start[c], i + 1), cell_start[c + 1]):
-                        dx = _min_image(pos[j, 0] - xi, periodic_len[0])
-                        dy = _min_image(pos[j, 1] - yi, periodic_len[1])
-                        dz = _min_image(pos[j, 2] - zi, periodic_len[2])
+                        dx = _min_image(pos[j, 0] - xi, pl0)
+                        dy = _min_image(pos[j, 1] - yi, pl1)
+                        dz = _min_image(pos[j, 2] - zi, pl2)
                         cut = ri + radius[j] + skin
                         if dx * dx + dy * dy + dz * dz < cut * cut:
                             cnt += 1
@@ -206,48 +220,62 @@ def pair_fill(pos, radius, n, skin, lo, size, nc, periodic_len, cell_start, firs
     need = first_start[n]
     if need > capacity:
         return need
+    # scalars hoisted out of the loops (the compiler cannot prove the output arrays do not
+    # alias these inputs, so it would reload them in the innermost loop)
+    pl0 = periodic_len[0]
+    pl1 = periodic_len[1]
+    pl2 = periodic_len[2]
+    nc0 = nc[0]
+    nc1 = nc[1]
+    nc2 = nc[2]
+    lo0 = lo[0]
+    lo1 = lo[1]
+    lo2 = lo[2]
+    sz0 = size[0]
+    sz1 = size[1]
+    sz2 = size[2]
     for i in prange(n):
         xi = pos[i, 0]
         yi = pos[i, 1]
         zi = pos[i, 2]
         ri = radius[i]
-        cx = min(max(int((xi - lo[0]) / size[0]), 0), nc[0] - 1)
-        cy = min(max(int((yi - lo[1]) / size[1]), 0), nc[1] - 1)
-        cz = min(max(int((zi - lo[2]) / size[2]), 0), nc[2] - 1)
-        me = (cx * nc[1] + cy) * nc[2] + cz
+        cx = min(max(int((xi - lo0) / sz0), 0), nc0 - 1)
+        cy = min(max(int((yi - lo1) / sz1), 0), nc1 - 1)
+        cz = min(max(int((zi - lo2) / sz2), 0), nc2 - 1)
+        me = (cx * nc1 + cy) * nc2 + cz
         k = first_start[i]
         kend = first_start[i + 1]
         for ox in range(-1, 2):
             ax = cx + ox
-            if periodic_len[0] > 0.0:
-                if nc[0] < 3 and ox != 0 and (ax < 0 or ax >= nc[0]):
+            if pl0 > 0.0:
+                if nc0 < 3 and ox != 0 and (ax < 0 or ax >= nc0):
                     continue
-                ax = ax % nc[0]
-            elif ax < 0 or ax >= nc[0]:
+                ax = ax % nc0
+            elif ax < 0 or ax >= nc0:
                 continue
             for oy in range(-1, 2):
                 ay = cy + oy
-                if periodic_len[1] > 0.0:
-                    if nc[1] < 3 and oy != 0 and (ay < 0 or ay >= nc[1]):
+                if pl1 > 0.0:
+                    if nc1 < 3 and oy != 0 and (ay < 0 or ay >= nc1):
                         continue
-                    ay = ay % nc[1]
-                elif ay < 0 or ay >= nc[1]:
+                    ay = ay % nc1
+                elif ay < 0 or ay >= nc1:
                     continue
                 for oz in range(-1, 2):
                     az = cz + oz
-                    if periodic_len[2] > 0.0:
-                        if nc[2] < 3 and oz != 0 and (az < 0 or az >= nc[2]):
+                    if pl2 > 0.0:
+                        if nc2 < 3 and oz != 0 and (az < 0 or az >= nc2):
                             continue
-                        az = az % nc[2]
-                    elif az < 0 or az >= nc[2]:
+                        az = az % nc2
+                    elif az < 0 or az >= nc2:
                         continue
-                    c = (ax * nc[1] + ay) * nc[2] + az
+                    c = (ax * nc1 + ay) * nc2 + az
                     if c < me:
                         continue
                     for j in range(max(cell_start[c], i + 1), cell_start[c + 1]):
-                        dx = _min_image(pos[j, 0] - xi, periodic_len[0])
-                        dy = _min_image(pos[j, 1] - yi, periodic_len[1])
-                        dz = _min_image(pos[j, 2] - zi, periodic_len[2])
+                        dx = _min_image(pos[j, 0] - xi, pl0)
+                        dy = _min_image(pos[j, 1] - yi, pl1)
+                        dz = _min_image(pos[j, 2] - zi, pl2)
                         cut = ri + radius[j] + skin
                         if dx * dx + dy * dy + dz * dz < cut * cut and k < kend:
                             pi[k] = i
@@ -344,3 +372,42 @@ bounding_box_s = serial_twin(bounding_box)
 pair_count_s = serial_twin(pair_count)
 pair_fill_s = serial_twin(pair_fill)
 remap_history_s = serial_twin(remap_history)
+
+
+@parallel_kernel
+def gather_rows(a, order, n, out):
+    """out[k, :] = a[order[k], :] for k < n (row permutation into a scratch buffer)."""
+    m = a.shape[1]
+    for k in prange(n):
+        src = order[k]
+        for c in range(m):
+            out[k, c] = a[src, c]
+
+
+@parallel_kernel
+def copy_rows(src, n, dst):
+    """dst[k, :] = src[k, :] for k < n."""
+    m = src.shape[1]
+    for k in prange(n):
+        for c in range(m):
+            dst[k, c] = src[k, c]
+
+
+gather_rows_s = serial_twin(gather_rows)
+copy_rows_s = serial_twin(copy_rows)
+
+
+def permute_rows(a, order, n, scratch, serial):
+    """In-place a[:n] = a[order] for a C-contiguous array of float64, int64 (bitwise) or other
+    dtypes (numpy fallback), using ``scratch`` (float64, flat) as the buffer."""
+    if a.dtype == np.float64 or a.dtype == np.int64:
+        cap = a.shape[0]
+        a2 = a.reshape(cap, -1)
+        if a.dtype == np.int64:
+            a2 = a2.view(np.float64)
+        m = a2.shape[1]
+        out = scratch[: n * m].reshape(n, m)
+        (gather_rows_s if serial else gather_rows)(a2, order, n, out)
+        (copy_rows_s if serial else copy_rows)(out, n, a2)
+    else:
+        a[:n] = a[order]

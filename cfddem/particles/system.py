@@ -256,9 +256,12 @@ class ParticleSystem:
         cell_start = np.empty(ncell + 1, np.int64)
         nb.cell_sort(self._pos, n, lo, size, nc, cell_of, order, cell_start)
         # reorder particle arrays by cell (prev keeps each particle's index at the last build)
+        ser = self._serial(n)
+        need = n * 3 * max(self.nw, 1)
+        if getattr(self, "_scratch", None) is None or self._scratch.size < need:
+            self._scratch = np.empty(max(need, 3 * self._cap * max(self.nw, 1)))
         for name in _PARTICLE_ARRAYS + _WALL_ARRAYS:
-            a = getattr(self, "_" + name)
-            a[:n] = a[order]
+            nb.permute_rows(getattr(self, "_" + name), order, n, self._scratch, ser)
         old_index = self._prev[:n].copy()
         # swap buffers: the current list becomes the old one
         self._old, self._cur = self._cur, self._old
@@ -268,7 +271,6 @@ class ParticleSystem:
             cur.update(first_start=np.zeros(self._cap + 1, np.int64),
                        second_start=np.zeros(self._cap + 1, np.int64),
                        counts=np.zeros(self._cap, np.int64))
-        ser = self._serial(n)
         (nb.pair_count_s if ser else nb.pair_count)(self._pos, self._radius, n, skin, lo, size, nc, self._plen, cell_start,
                       cur["counts"])
         need = nb.prefix_sum(cur["counts"], n, cur["first_start"])
