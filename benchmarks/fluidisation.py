@@ -2,7 +2,7 @@
 
     python benchmarks/fluidisation.py --out DIR [--particles 1000] [--closures beetstra,wen_yu]
 
-A column of glass spheres (d = 2 mm, 2550 kg/m3) in air, periodic across (x, z), resting on a
+A column of glass spheres (d = 1 mm, 2550 kg/m3) in air, periodic across (x, z), resting on a
 floor wall at y = 0 through which the gas enters uniformly (a velocity inlet over the whole
 bottom: an ideal distributor plate that the particles cannot pass), pressure outlet on top
 (:func:`cfddem.coupling.exchange.column_gas`).  The bed is poured and settled with the gas at
@@ -43,8 +43,8 @@ from cfddem.particles.walls import PlaneWall
 RHO_G, MU, G = 1.2, 1.8e-5, 9.81
 
 
-def build_column(n_particles=1000, d=2e-3, rho_p=2550.0, closure="beetstra", cells=(3, 16, 3), h=6e-3,
-                 k_n=50.0, dt=5e-5, coupling_interval=10, seed=0, e_n=0.9):
+def build_column(n_particles=1000, d=1e-3, rho_p=2550.0, closure="beetstra", cells=(3, 16, 3), h=3e-3,
+                 k_n=20.0, dt=2.5e-5, coupling_interval=4, seed=0, e_n=0.9):
     """Particles placed at random (no overlaps) in the lower part of the column, at rest."""
     Lx, Ly, Lz = cells[0] * h, cells[1] * h, cells[2] * h
     law = LinearContact(k_n=k_n, e_n=e_n, e_t=0.5, mu=0.3)
@@ -142,7 +142,7 @@ def main(argv=None):
         t0 = time.perf_counter()
         sys_, cg = build_column(args.particles, closure=name)
         # velocities relative to the closure's U_mf at eps 0.4
-        u_ref = drag.minimum_fluidisation_velocity(0.4, 2550.0, RHO_G, 2e-3, MU, closure=name)
+        u_ref = drag.minimum_fluidisation_velocity(0.43, 2550.0, RHO_G, 1e-3, MU, closure=name)
         vels = u_ref * np.array([0.2, 0.4, 0.6, 0.75, 0.9, 1.1, 1.3, 1.5, 1.7])
         rows, weight = curve(sys_, cg, vels, t_step=args.t_step)
         eps_mf = rows[0]["eps_seen_before"]
@@ -150,7 +150,7 @@ def main(argv=None):
             umf, fit = umf_from_curve(rows, weight)
         except ValueError:
             umf, fit = float("nan"), (float("nan"), float("nan"))
-        umf_pred = drag.minimum_fluidisation_velocity(eps_mf, 2550.0, RHO_G, 2e-3, MU, closure=name)
+        umf_pred = drag.minimum_fluidisation_velocity(eps_mf, 2550.0, RHO_G, 1e-3, MU, closure=name)
         wall = time.perf_counter() - t0
         results[name] = dict(rows=rows, weight_per_area=weight, eps_mf=eps_mf, umf=umf, umf_closure=umf_pred,
                              fit=list(fit), wall_time=wall)
@@ -179,7 +179,7 @@ def main(argv=None):
     ax.axhline(w, color="grey", ls="--", label="bed weight / area")
     ax.set_xlabel("superficial gas velocity U [m/s]")
     ax.set_ylabel("pressure drop [Pa]")
-    ax.set_title(f"Fluidisation of {args.particles} glass spheres, d = 2 mm")
+    ax.set_title(f"Fluidisation of {args.particles} glass spheres, d = 1 mm")
     ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(os.path.join(args.out, "fluidisation.png"), dpi=120)
