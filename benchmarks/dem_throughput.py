@@ -35,6 +35,11 @@ import time
 if "--omp-wait" in sys.argv:
     os.environ["OMP_WAIT_POLICY"] = sys.argv[sys.argv.index("--omp-wait") + 1].upper()
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+# pin the threading layer: installing the peer (apt liggghts) pulls in libtbb, after which numba
+# would silently switch from OpenMP to TBB between two runs of this script (--threading-layer)
+if "--threading-layer" in sys.argv:
+    os.environ["NUMBA_THREADING_LAYER"] = sys.argv[sys.argv.index("--threading-layer") + 1]
+os.environ.setdefault("NUMBA_THREADING_LAYER", "omp")
 
 import numba  # noqa: E402
 import numpy as np  # noqa: E402
@@ -124,6 +129,7 @@ def main(argv=None):
     ap.add_argument("--peer", action="store_true")
     ap.add_argument("--omp-wait", choices=["passive", "active"], default="passive",
                     help="OMP_WAIT_POLICY for numba's OpenMP threads (default passive)")
+    ap.add_argument("--threading-layer", choices=["omp", "tbb", "workqueue"], default="omp")
     a = ap.parse_args(argv)
 
     threads = [a.threads] if a.threads else [1, min(2, numba.config.NUMBA_NUM_THREADS)]
