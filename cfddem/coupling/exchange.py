@@ -321,7 +321,7 @@ class CoupledGas:
             self.last_exchange = {"particle_drag_impulse": dtg * Fd.sum(axis=0),
                                   "gas_drag_impulse": -gas_drag,
                                   "particle_pressure_impulse": dtg * Fp.sum(axis=0),
-                                  "gas_solid_pressure_impulse": self._solid_pressure_impulse(eps, dtg),
+                                  "gas_solid_pressure_impulse": self._solid_pressure_impulse(dtg),
                                   "particle_boundary_pressure_impulse": dtg * Fb.sum(axis=0)}
         else:
             self._last["drag_power"] = 0.0
@@ -465,28 +465,15 @@ class CoupledGas:
             out.append(G)
         return out
 
-    def _solid_pressure_impulse(self, eps, dtg):
+    def _solid_pressure_impulse(self, dtg):
         """Gas side of the pressure exchange: of the gas's pressure impulse
         ``-dt_g sum_f eps_f g_f V_cell = -dt_g V_cell sum_f g_f + dt_g sum_f (1 - eps_f) g_f V_cell``
-        this returns the second (solid) part, over the updated faces, eps_f from the gas's own
-        (halo-filled) porosity; the first part telescopes to 0 on periodic axes."""
-        gas, grid = self.gas, self.grid
-        h = grid.halo
-        e = gas.eps.data
-        res = np.zeros(3)
-        for c, g in enumerate(self._face_gradients()):
-            n = grid.shape[c]
-            core = [slice(h, h + grid.shape[k]) for k in range(3)]
-            a = list(core)
-            b = list(core)
-            a[c] = slice(h - 1, h + n)
-            b[c] = slice(h, h + n + 1)
-            ef = 0.5 * (e[tuple(a)] + e[tuple(b)])
-            if self.periodic[c]:
-                g = g.copy()
-                g[_sl(c, n)] = 0.0
-            res[c] = dtg * grid.cell_volume * float(np.sum((1.0 - ef) * g))
-        return res  # the gas's share; the particles should receive minus this
+        this returns the second (solid) part, over the updated faces (g is zero elsewhere),
+        eps_f from the gas's own (halo-filled) porosity; the first part telescopes to 0 on
+        periodic axes.  The particles' share of 5a should be minus this."""
+        vc = self.grid.cell_volume
+        return np.array([dtg * vc * float(np.sum((1.0 - ef) * g))
+                         for ef, g in zip(self._face_porosity(), self._face_gradients())])
 
     def _report_low(self, por):
         self._low_reports += 1
@@ -499,21 +486,9 @@ class CoupledGas:
     # ------------------------------------------------------------------ output
     def gas_momentum(self) -> np.ndarray:
         """rho sum_f eps_f u_f V_cell over the faces the momentum equation updates [kg m/s]."""
-        gas, grid = self.gas, self.grid
-        h = grid.halo
-        e = gas.eps.data
-        out = np.zeros(3)
-        for c, f in enumerate((gas.u, gas.v, gas.w)):
-            n = grid.shape[c]
-            core = [slice(h, h + grid.shape[k]) for k in range(3)]
-            a = list(core)
-            b = list(core)
-            a[c] = slice(h - 1, h + n)
-            b[c] = slice(h, h + n + 1)
-            ef = 0.5 * (e[tuple(a)] + e[tuple(b)])
-            m = self._upd_mask(c)
-            out[c] = self.rho * grid.cell_volume * float(np.sum(ef * f.interior * m))
-        return out
+        gas, vc = self.gas, self.grid.cell_volume
+        return np.array([self.rho * vc * float(np.sum(ef * f.interior * self._upd_mask(c)))
+                         for c, (ef, f) in enumerate(zip(self._face_porosity(), (gas.u, gas.v, gas.w)))])
 
     def series_row(self) -> dict:
         row = dict(self._last)
