@@ -72,15 +72,27 @@ class PressureSolver:
 
     Parameters: grid (StaggeredGrid), pressure_bc: dict side -> "neumann" | "dirichlet" |
     "periodic", tol, maxiter, rebuild_threshold.
+
+    AMG hierarchy reuse: an AMG V-cycle built for an older matrix is still a symmetric positive
+    definite preconditioner for CG on the current one; it only gets less effective.  So the
+    hierarchy is rebuilt (a) when the coefficients changed by more than ``rebuild_threshold``
+    (relative, max norm) since the last build, or (b) when CG needed more than
+    ``rebuild_iteration_factor`` times (and at least 3 more than) the iterations of the first
+    solve after the last build.  In a coupled run particles entering empty cells change the
+    coefficients locally by O(1) every step, so (a) alone would rebuild at every gas step (the
+    AMG set-up costs ~20 solves); set ``rebuild_threshold=inf`` to use (b) alone.
     """
 
     def __init__(self, grid, pressure_bc: dict, *, tol: float = 1e-8, maxiter: int = 200,
-                 rebuild_threshold: float = 0.05):
+                 rebuild_threshold: float = 0.05, rebuild_iteration_factor: float = 1.5):
         self.grid = grid
         self.pressure_bc = dict(pressure_bc)
         self.tol = float(tol)
         self.maxiter = int(maxiter)
         self.rebuild_threshold = float(rebuild_threshold)
+        self.rebuild_iteration_factor = float(rebuild_iteration_factor)
+        self._base_iters = None  # iterations of the first solve after the last build
+        self._slow = False  # the last solve needed too many iterations: rebuild next time
         self.singular = not any(v == "dirichlet" for v in self.pressure_bc.values())
         self._build_pattern()
         self._ml = None
@@ -171,8 +183,10 @@ class PressureSolver:
         self._coef = coef
 
     def needs_rebuild(self) -> bool:
-        if self._ml is None:
+        if self._ml is None or self._slow:
             return True
+        if not np.isfinite(self.rebuild_threshold):
+            return False
         ref = self._coef_ref
         change = np.max(np.abs(self._coef - ref)) / max(np.max(np.abs(ref)), 1e-300)
         return change > self.rebuild_threshold
@@ -202,6 +216,8 @@ class PressureSolver:
                     setattr(lvl, name, getattr(lvl, name).tocsr())
         self._M = self._ml.aspreconditioner(cycle="V")
         self._coef_ref = self._coef.copy()
+        self._base_iters = None
+        self._slow = False
         self.n_rebuilds += 1
 
     @property
@@ -246,4 +262,18 @@ class PressureSolver:
         converged = bool(np.isfinite(r) and r <= self.tol * 1.0001)
         if not np.all(np.isfinite(x)):
             converged = False
-        return x.reshape(self.grid.shape), SolveInfo(max(len(res) - 1, 0), r, converged, rebuilt, compat)
+        its = max(len(res) - 1, 0)
+        if self._base_iters is None:
+            self._base_iters = its
+        elif its > max(self.rebuild_iteration_factor * self._base_iters, self._base_iters + 3):
+            self._slow = True
+        return x.reshape(self.grid.shape), SolveInfo(its, r, converged, rebuilt, compat)
+
+    def reuse_state(self) -> dict:
+        """The rebuild-policy counters (part of a bit-identical restart)."""
+        return {"base_iters": -1 if self._base_iters is None else int(self._base_iters), "slow": bool(self._slow)}
+
+    def set_reuse_state(self, d: dict) -> None:
+        b = int(d.get("base_iters", -1))
+        self._base_iters = None if b < 0 else b
+        self._slow = bool(d.get("slow", False))

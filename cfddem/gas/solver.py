@@ -78,7 +78,8 @@ class GasSolver:
     the rotation axis.
     advection: "tvd" (van Leer, bounded) or "central" (second order).
     tol, maxiter: pressure solver tolerance (relative residual) and iteration limit.
-    rebuild_threshold: relative coefficient change that triggers an AMG rebuild.
+    rebuild_threshold: relative coefficient change that triggers an AMG rebuild (default inf:
+        rebuild only when CG slows down, see :class:`~cfddem.gas.pressure.PressureSolver`).
     cfl_max: advective Courant number used by :meth:`max_stable_dt`.
     viscosity: "explicit" (forward Euler, viscous step limit) or "implicit" (semi-implicit:
     backward Euler for the Laplacian part of the stress divergence, the cross-derivative
@@ -89,7 +90,7 @@ class GasSolver:
     def __init__(self, grid: StaggeredGrid, *, rho: float = 1.2, mu: float = 1.8e-5, bcs: dict,
                  gravity=(0.0, 0.0, 0.0), omega=(0.0, 0.0, 0.0), axis_point=(0.0, 0.0, 0.0),
                  advection: str = "tvd", tol: float = 1e-8, maxiter: int = 200, lambda_bulk: float = 0.0,
-                 rebuild_threshold: float = 0.05, cfl_max: float = 0.5, viscosity: str = "explicit",
+                 rebuild_threshold: float = float("inf"), cfl_max: float = 0.5, viscosity: str = "explicit",
                  viscous_tol: float = 1e-10, viscous_maxiter: int = 500):
         if rho <= 0:
             raise CaseError("gas.rho", f"must be positive, got {rho}")
@@ -426,6 +427,7 @@ class GasSolver:
             "phi": self._phi.copy(), "time": float(self.time), "step_count": int(self.step_count),
             "eps_set": bool(self._eps_set),
             "amg_reference_coefficients": None if ref is None else ref,
+            "amg_reuse": self.psolver.reuse_state(),
         }
 
     def set_state(self, d: dict) -> None:
@@ -446,4 +448,6 @@ class GasSolver:
             o = np.cumsum([0] + [int(np.prod(x)) for x in s])
             self.psolver.set_coefficients(*(ref[o[i]:o[i + 1]].reshape(s[i]) for i in range(3)))
             self.psolver.rebuild()
+        if "amg_reuse" in d:
+            self.psolver.set_reuse_state(d["amg_reuse"])
         self.fill_halos()
