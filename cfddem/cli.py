@@ -4,6 +4,7 @@
     cfddem check CASE [--set K=V]...
     cfddem compare RUN_A RUN_B [--out DIR]
     cfddem sweep CASE --vary KEY=V1,V2,... [--scheduler ADDRESS] [--workers N]
+    cfddem accuracy SWEEP_DIR [--reference NAME]
     cfddem report OUT
 
 Exit codes: 0 success, 2 bad input (one line on stderr), 3 a run that failed (blow-up or solver
@@ -53,6 +54,11 @@ def _parser() -> argparse.ArgumentParser:
     cmp_.add_argument("run_b", help="run folder B")
     cmp_.add_argument("--out", help="report folder (default: RUN_B/compare)")
     cmp_.add_argument("--labels", nargs=2, metavar=("A", "B"), help="labels of the runs in the report")
+
+    acc = sub.add_parser("accuracy", help="speed against accuracy chart of a sweep folder")
+    acc.add_argument("sweep_dir", help="a folder written by cfddem sweep")
+    acc.add_argument("--reference", help="the variant (folder name) taken as the most accurate run")
+    acc.add_argument("--out", help="output folder (default: the sweep folder)")
 
     try:
         from .sweep import add_sweep_parser
@@ -131,6 +137,16 @@ def _dispatch(args) -> int:
               f"(B - A)/A = {100 * summary['relative_difference_end']:+.2f} %; wall time B/A = "
               f"{summary['wall_time_ratio']:.3f}")
         print(f"report: {out / 'report.md'}, {out / 'report.html'}, {out / 'summary.json'}")
+        return 0
+    if args.command == "accuracy":
+        from .report.speed_accuracy import speed_accuracy
+
+        res = speed_accuracy(args.sweep_dir, reference=args.reference, out=args.out)
+        print(f"reference: {res['reference']}")
+        for e in res["rows"]:
+            print(f"  {e['name']}: {e['status']}, wall {e['wall_time']:.1f} s, bed height RMS "
+                  f"{e['bed_height_rms_mm']:.3f} mm, surface velocity RMS {100 * e['surface_velocity_rel_rms']:.2f} %"
+                  + (" (within the experimental error)" if e.get("within_bands") else ""))
         return 0
     if args.command == "sweep":
         from .sweep import run_sweep_from_args
