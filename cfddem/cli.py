@@ -106,7 +106,7 @@ def _dispatch(args) -> int:
                   file=sys.stderr)
         return 0
     if args.command == "run":
-        from .simulation import Simulation
+        from .simulation import run_case
 
         overrides = list(args.overrides)
         if args.force:
@@ -116,15 +116,22 @@ def _dispatch(args) -> int:
         case = load_case(args.case, overrides=overrides)
         if args.resume and args.overwrite:
             raise CaseError("--resume", "cannot be combined with --overwrite")
-        sim = Simulation(case, out_dir=args.out, overwrite=args.overwrite, resume=args.resume,
-                         threads=args.threads, echo=not args.quiet, progress=not args.quiet)
-        summary = sim.run()
+        summary, comparison = run_case(case, out_dir=args.out, overwrite=args.overwrite, resume=args.resume,
+                                       threads=args.threads, echo=not args.quiet, progress=not args.quiet)
         print(f"cfddem: {summary.status}: t = {summary.time:.4g} s, {summary.steps} steps, "
               f"{summary.wall_time:.1f} s wall; results in {summary.out_dir}")
         if summary.message:
             print(f"cfddem: {summary.message}")
-        if summary.status == "interrupted" and sim._signal is not None:
-            return 128 + int(sim._signal)
+        if comparison is not None:
+            c = comparison
+            print(f"cfddem: gas against no gas: mean streamwise velocity over the last 0.1 m "
+                  f"{c['velocity_end_a']:.4f} m/s without gas, {c['velocity_end_b']:.4f} m/s with gas "
+                  f"({100 * c['relative_difference_end']:+.2f} %); the gas costs {c['wall_time_ratio']:.2f}x "
+                  f"the wall time; report: {summary.out_dir}/compare/report.html")
+        if summary.status == "interrupted":
+            import signal as _signal
+
+            return 128 + int(_signal.SIGINT if "SIGINT" in summary.message else _signal.SIGTERM)
         return 0
     if args.command == "compare":
         from pathlib import Path

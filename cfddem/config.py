@@ -172,6 +172,10 @@ SCHEMA: dict[str, dict] = {
         "cell_z": _pos(0.006, "m", "measurement cell size along the chute"),
         "n_top": Key("int", 6, "-", "topmost particles per cell for the surface velocity", lo=1),
     },
+    "study": {
+        "compare_without_gas": Key("bool", False, "-", "after a run with gas, run the same case without gas into "
+                                   "OUT/no_gas and write the gas-against-no-gas report into OUT/compare"),
+    },
     "gas": {
         "enabled": Key("bool", False, "-", "solve the interstitial gas (two-way coupled)"),
         "density": _pos(1.2, "kg/m^3", "gas density"),

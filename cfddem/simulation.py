@@ -82,7 +82,7 @@ def prepare_out_dir(out: Path, overwrite: bool) -> None:
             raise CaseError("--out", f"{out} is not empty and holds no cfddem run ({RUN_MARKER} missing): "
                                      "refusing to delete files the run did not write")
         for name in ("results.h5", "results_snapshots", "run.log", "case.resolved.toml", RUN_MARKER, "vtk", "report",
-                     "checkpoints"):
+                     "checkpoints", "no_gas", "compare"):
             p = out / name
             if p.is_dir():
                 shutil.rmtree(p)
@@ -491,6 +491,31 @@ class Simulation:
             except Exception as e:
                 self.log.error("could not write the plots: %s", e)
         return summary
+
+
+def run_case(case: Case, out_dir: str | Path | None = None, **kw) -> tuple[RunSummary, dict | None]:
+    """Run a case as ``cfddem run`` does: the run itself and, when the case asks for it
+    (``study.compare_without_gas`` with gas enabled), the same case without gas into
+    ``OUT/no_gas`` and the comparison report into ``OUT/compare``.  Returns the main run's
+    summary and the comparison summary (or None)."""
+    from .config import build_case
+
+    sim = Simulation(case, out_dir, **kw)
+    summary = sim.run()
+    if not (case.study.compare_without_gas and case.gas.enabled) or summary.status != "done":
+        return summary, None
+    from .report.compare import compare_runs
+
+    twin = build_case(case.resolved, case_dir=case.path, overrides={"gas.enabled": False},
+                      raw_text=case.raw_text)
+    kw2 = dict(kw)
+    kw2["resume"] = kw.get("resume", False) and (sim.out / "no_gas" / RUN_MARKER).exists() and \
+        json.loads((sim.out / "no_gas" / RUN_MARKER).read_text()).get("status") != "done"
+    kw2["overwrite"] = True
+    sim.log.info("study: the same case without gas -> %s", sim.out / "no_gas")
+    Simulation(twin, sim.out / "no_gas", **kw2).run()
+    comparison = compare_runs(sim.out / "no_gas", sim.out, sim.out / "compare", labels=("no gas", "with gas"))
+    return summary, comparison
 
 
 def check_disk_space(case: Case, out: Path) -> None:
