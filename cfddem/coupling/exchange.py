@@ -55,7 +55,8 @@ Scheme (one coupling step, at particle time t; superscript n+1 = the gas after i
       (``g_1`` the first interior face gradient at ``p^{n+1}``) and the gas on face 1 the
       explicit source ``(eps_0/2)(-g^n_1 + rho g_c)`` (its pressure force at ``p^n`` and its
       weight, so a hydrostatic rest state stays exact; the rotating-frame terms of the
-      half-cell are left out).  The boundary supplies these forces, as it supplies the
+      half-cell are left out), blended in over the first 5 % of solid in the cell so that
+      particle-free wall cells keep the gas solver's own discretisation.  The boundary supplies these forces, as it supplies the
       pressure on the gas next to it; in a fluidised bed the pressure extrapolated to the
       distributor, ``p_0 - (h/2) g_1``, then carries the whole bed weight.
 
@@ -120,6 +121,9 @@ def _sl(d, s):
 class CoupledGas:
     """Gas solver plus the momentum exchange with a ParticleSystem (see module docstring).
 
+    ``HALF_CELL_SOLID`` (0.05): solid fraction of a boundary cell above which its half-cell
+    gas is fully added to the first face's control volume (step 5b).
+
     Parameters
     ----------
     system: the ParticleSystem (its ``ext_force`` is overwritten at every coupling step).
@@ -140,6 +144,8 @@ class CoupledGas:
     log: a logger (default ``logging.getLogger("cfddem")``); gas_kw: passed to GasSolver
     (advection, tol, maxiter, ...).
     """
+
+    HALF_CELL_SOLID = 0.05
 
     def __init__(self, system, grid: StaggeredGrid, bcs: dict, *, rho: float, mu: float,
                  closure: str = "beetstra", coupling_interval: int = 10, drag_treatment: str = "implicit",
@@ -412,8 +418,10 @@ class CoupledGas:
     def _boundary_source(self):
         """Explicit gas source [N/m3] on the first updated face next to each boundary face that
         is not a gas unknown: the pressure force and weight of the gas in the boundary
-        half-cell, ``S = (eps_b/2) (-g^n_1 + rho g_c)`` (eps_b the boundary cell's porosity,
-        g^n_1 the face gradient of the current pressure).  None if the box has no such side."""
+        half-cell, ``S = (eps_b/2) s (-g^n_1 + rho g_c)`` (eps_b the boundary cell's porosity,
+        g^n_1 the face gradient of the current pressure), blended in with the cell's solid
+        fraction, ``s = min(1, (1 - eps_b)/HALF_CELL_SOLID)``, so that particle-free boundary
+        cells keep the gas solver's own discretisation.  None if the box has no such side."""
         if not any(self._has_boundary):
             return None
         grads = self._face_gradients()
@@ -432,7 +440,8 @@ class CoupledGas:
                 sl = list(core)
                 sl[c] = slice(h + cell, h + cell + 1)
                 eb = e[tuple(sl)]
-                S[_sl(c, slice(f, f + 1))] += 0.5 * eb * (-g[_sl(c, slice(f, f + 1))] + self.rho * self._g[c])
+                blend = np.minimum(1.0, (1.0 - eb) / self.HALF_CELL_SOLID)
+                S[_sl(c, slice(f, f + 1))] += 0.5 * eb * blend * (-g[_sl(c, slice(f, f + 1))] + self.rho * self._g[c])
             out.append(S)
         return tuple(out)
 
