@@ -185,7 +185,9 @@ class CoupledGas:
         self._superficial: dict = {}
         for side, U in (superficial_inlets or {}).items():
             self.set_superficial_inlet(side, U)
-        # time average of the cell-centred gas velocity (write_measurements)
+        # time average of the cell-centred gas velocity (write_measurements), over gas steps
+        # ending after average_start (build_coupled_gas: measurements.start_time)
+        self.average_start = 0.0
         self._avg_sum = np.zeros(grid.shape + (3,))
         self._avg_time = 0.0
         # updated-face masks: which faces of each component the momentum equation updates;
@@ -332,9 +334,9 @@ class CoupledGas:
         else:
             self._last["drag_power"] = 0.0
             self._last["max_drag_force"] = 0.0
-        cc = gas.cell_centred_velocity()
-        self._avg_sum += cc * dtg
-        self._avg_time += dtg
+        if gas.time > self.average_start + 1e-12 * dtg:
+            self._avg_sum += gas.cell_centred_velocity() * dtg
+            self._avg_time += dtg
         if gas.max_stable_dt() < dtg and self.n_couplings % 1000 == 1:
             self.log.warning("gas time step dt_g = %.3g s exceeds the gas's stable step %.3g s (CFL %.3g)",
                              dtg, gas.max_stable_dt(), info.cfl)
@@ -517,7 +519,8 @@ class CoupledGas:
                                "porosity": np.array(self.gas.eps.interior)})
 
     def mean_velocity(self) -> np.ndarray:
-        """Time-averaged cell-centred gas velocity (nx, ny, nz, 3) since the start (or reset)."""
+        """Time-averaged cell-centred gas velocity (nx, ny, nz, 3) over the gas steps ending
+        after ``average_start`` (or since :meth:`reset_average`); the current field if none."""
         if self._avg_time <= 0:
             return self.gas.cell_centred_velocity()
         return self._avg_sum / self._avg_time
@@ -527,15 +530,17 @@ class CoupledGas:
         self._avg_time = 0.0
 
     def write_measurements(self, results_file) -> None:
-        """``/measurements/gas``: time-averaged cell-centred velocity (nx, ny, nz, 3) over all
-        coupling steps so far, its depth-mean ``top_view`` (nx, nz, 3) for the report, cell
+        """``/measurements/gas``: time-averaged cell-centred velocity (nx, ny, nz, 3) over the
+        coupling steps ending after ``average_start`` (the current field before that), its
+        depth-mean ``top_view_velocity`` (nx, nz, 3) for the report, cell
         centre coordinates, and the averaging time."""
         g = self.grid
         mv = self.mean_velocity()
         results_file.write_measurements("gas", {
             "mean_velocity": mv, "top_view_velocity": mv.mean(axis=1),
             "x": g.centres(0), "y": g.centres(1), "z": g.centres(2),
-        }, {"averaging_time": float(self._avg_time), "closure": self.closure,
+        }, {"averaging_time": float(self._avg_time), "average_start": float(self.average_start),
+            "closure": self.closure,
             "drag_treatment": self.drag_treatment, "coupling_interval": self.N})
 
     # ------------------------------------------------------------------ restart
@@ -658,6 +663,7 @@ def build_coupled_gas(case, system, log=None) -> CoupledGas:
     cg = CoupledGas(system, grid, bcs, rho=gcfg.density, mu=gcfg.viscosity, closure=gcfg.drag,
                     coupling_interval=gcfg.coupling_interval, drag_treatment=gcfg.drag_treatment,
                     gravity=tuple(g), omega=tuple(om), axis_point=ap, log=log)
+    cg.average_start = float(case.measurements.start_time)
     cg.gas.set_velocity(lambda x, y, z: (0.0 * x, 0.0 * x, vin + 0.0 * x))
     cg.gas.set_pressure(lambda x, y, z: gcfg.density * (g[0] * x + g[1] * y + g[2] * (z - grid.origin[2] - grid.lengths[2])))
     if log is not None:
