@@ -16,7 +16,7 @@ from cfddem._jit import kernel
 
 
 def serial_twin(dispatcher):
-    f = dispatcher.py_func
+    f = getattr(dispatcher, "py_func", dispatcher)  # NUMBA_DISABLE_JIT=1: a plain function
     g = types.FunctionType(f.__code__, f.__globals__, f.__name__ + "_serial", f.__defaults__,
                            f.__closure__)
     g.__qualname__ = f.__qualname__ + "_serial"
