@@ -651,5 +651,53 @@ def describe_case(case: Case) -> list[str]:
     lines.append(f"expected particles: about {n:,}; memory about {memory_estimate(n) / 2 ** 20:.0f} MiB")
     steps = int(math.ceil(case.time.end_time / case.time.dt))
     lines.append(f"steps to end time {case.time.end_time:g} s: {steps:,}")
-    lines.append("gas: " + ("enabled" if case.gas.enabled else "off (no gas solver is built)"))
+    if case.gas.enabled:
+        from .coupling.exchange import coupling_diagnostics
+
+        lines += ["gas: " + x for x in coupling_diagnostics(case)]
+        n_rec = recommended_coupling_interval(case)
+        lines.append(f"gas: recommended coupling interval {n_rec} particle steps (gas step {n_rec * case.time.dt:.3g} s: "
+                     f"gas CFL <= 0.3 at the fastest expected flow); the case uses {case.gas.coupling_interval}")
+    else:
+        lines.append("gas: off (no gas solver is built)")
     return lines
+
+
+def expected_max_speed(case: Case) -> float:
+    """Speed scale of the flow: a particle sliding the whole chute from the feed velocity,
+    accelerating at g (sin theta - mu_w cos theta), or the lid cross-wind at the chute's far
+    corner, whichever is larger."""
+    th = math.radians(case.gravity.inclination_deg)
+    a = max(0.0, case.gravity.g * (math.sin(th) - case.contact.particle_wall.mu * math.cos(th)))
+    v0 = 0.0
+    if case.inlet.type == "sluice":
+        from .particles.inlets import SluiceInlet
+
+        dmax = max(case.particles.diameter, case.particles.diameter_max)
+        v0 = SluiceInlet(width=case.geometry.width, height=case.inlet.height, z=case.inlet.z, diameter=dmax,
+                         density=case.particles.density, mass_rate=case.inlet.mass_rate, gap=case.inlet.gap).velocity
+    L = case.geometry.length if case.geometry.type == "chute" else 0.0
+    v = math.sqrt(v0 * v0 + 2.0 * a * L)
+    om = frame_omega(case)
+    if np.any(om) and case.geometry.type == "chute":
+        geo = case.geometry
+        ap = np.array(case.frame.axis_point, float)
+        corners = np.array([[x, case.gas.height, z] for x in (0.0, geo.width)
+                            for z in (geo.z_start, geo.z_start + geo.length)])
+        v = max(v, float(np.max(np.linalg.norm(np.cross(om, corners - ap), axis=1))))
+    return v
+
+
+def recommended_coupling_interval(case: Case, cfl: float = 0.3) -> int:
+    """Largest number of particle steps per gas step keeping the gas CFL number (sum over the
+    axes of u dt_g / h) at or below ``cfl`` for the expected flow speed, and the gas step below
+    the rotating frame's explicit Coriolis limit 0.05/|Omega|."""
+    nx, ny, nz = case.gas.cells
+    geo = case.geometry
+    h = (geo.width / nx, case.gas.height / ny, geo.length / nz)
+    u = max(expected_max_speed(case), 1e-9)
+    dtg = cfl / sum(u / hh for hh in h)
+    om = float(np.linalg.norm(frame_omega(case)))
+    if om > 0:
+        dtg = min(dtg, 0.05 / om)
+    return max(1, int(dtg / case.time.dt))
