@@ -125,7 +125,6 @@ class Simulation:
     # ------------------------------------------------------------------------------- set-up
     def build(self) -> None:
         """Build the particle system, inlet, measurements and schedules (no files written)."""
-        from .particles.inlets import SluiceInlet
         from .particles.system import ParticleSystem
 
         case = self.case
@@ -156,11 +155,7 @@ class Simulation:
                                       omega=init["omega"])
         self.inlet = None
         if case.inlet.type == "sluice":
-            dmax = max(case.particles.diameter, case.particles.diameter_max)
-            self.inlet = SluiceInlet(width=case.geometry.width, height=case.inlet.height, z=case.inlet.z,
-                                     diameter=dmax, density=case.particles.density, mass_rate=case.inlet.mass_rate,
-                                     start_time=case.inlet.start_time, end_time=case.inlet.end_time,
-                                     gap=case.inlet.gap)
+            self.inlet = sluice_inlet(case)
         self.measure = None
         if case.geometry.type == "chute" and case.measurements.enabled:
             from .measure.chute import ChuteMeasurements
@@ -582,6 +577,16 @@ def check_time_step(case: Case, log=None) -> float:
     return ratio
 
 
+def sluice_inlet(case: Case):
+    """The case's sluice inlet (physics.md §5)."""
+    from .particles.inlets import SluiceInlet
+
+    p, inl = case.particles, case.inlet
+    return SluiceInlet(width=case.geometry.width, height=inl.height, z=inl.z, diameter=p.diameter,
+                       diameter_max=p.diameter_max, seed=p.seed, density=p.density, mass_rate=inl.mass_rate,
+                       start_time=inl.start_time, end_time=inl.end_time, gap=inl.gap)
+
+
 def expected_particles(case: Case) -> int:
     """Estimate of the particle count: initial particles plus the steady hold-up of a fed chute
     (feed rate x the time to slide the chute length, accelerating at g (sin theta - mu_w cos
@@ -593,11 +598,7 @@ def expected_particles(case: Case) -> int:
         except CaseError:
             pass
     if case.inlet.type == "sluice":
-        from .particles.inlets import SluiceInlet
-
-        dmax = max(case.particles.diameter, case.particles.diameter_max)
-        inl = SluiceInlet(width=case.geometry.width, height=case.inlet.height, z=case.inlet.z, diameter=dmax,
-                          density=case.particles.density, mass_rate=case.inlet.mass_rate, gap=case.inlet.gap)
+        inl = sluice_inlet(case)
         th = math.radians(case.gravity.inclination_deg)
         a = case.gravity.g * (math.sin(th) - case.contact.particle_wall.mu * math.cos(th))
         L = case.exit.z - case.inlet.z
@@ -640,11 +641,7 @@ def describe_case(case: Case) -> list[str]:
                  + (f"{case.frame.rpm:g} rpm, Omega = ({om[0]:.4g}, {om[1]:.4g}, {om[2]:.4g}) rad/s about "
                     f"{tuple(case.frame.axis_point)}" if case.frame.rpm else "none (inertial frame, no rotation terms)"))
     if case.inlet.type == "sluice":
-        from .particles.inlets import SluiceInlet
-
-        dmax = max(d, case.particles.diameter_max)
-        inl = SluiceInlet(width=case.geometry.width, height=case.inlet.height, z=case.inlet.z, diameter=dmax,
-                          density=case.particles.density, mass_rate=case.inlet.mass_rate, gap=case.inlet.gap)
+        inl = sluice_inlet(case)
         lines.append(f"inlet: {case.inlet.mass_rate:g} kg/s through a bcc sluice of {inl.lattice.per_period} particles "
                      f"per {inl.lattice.a * 1e3:.3f} mm, feed velocity {inl.velocity:.4g} m/s")
     n = expected_particles(case)
@@ -671,11 +668,7 @@ def expected_max_speed(case: Case) -> float:
     a = max(0.0, case.gravity.g * (math.sin(th) - case.contact.particle_wall.mu * math.cos(th)))
     v0 = 0.0
     if case.inlet.type == "sluice":
-        from .particles.inlets import SluiceInlet
-
-        dmax = max(case.particles.diameter, case.particles.diameter_max)
-        v0 = SluiceInlet(width=case.geometry.width, height=case.inlet.height, z=case.inlet.z, diameter=dmax,
-                         density=case.particles.density, mass_rate=case.inlet.mass_rate, gap=case.inlet.gap).velocity
+        v0 = sluice_inlet(case).velocity
     L = case.geometry.length if case.geometry.type == "chute" else 0.0
     v = math.sqrt(v0 * v0 + 2.0 * a * L)
     om = frame_omega(case)

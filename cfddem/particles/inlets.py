@@ -13,8 +13,13 @@ layers alternate, a/2 apart) enters at the insertion plane whenever the lattice 
 a/2 (the Simulation makes these due times events, so layers enter on time to within one step).
 A layer is inserted only if none of its spheres overlaps a particle already there; otherwise it
 waits, and the delay is recorded (``backlog_time``), so the inlet never creates overlaps and the
-mass fed never exceeds the prescribed rate.  Monodisperse feed (the chute case); the lattice uses the largest
-diameter when particles are polydisperse.
+mass fed never exceeds the prescribed rate.
+
+Polydisperse feed: with ``diameter_max > diameter`` each particle's diameter is drawn uniformly
+in [diameter, diameter_max]; the lattice is spaced for the largest one and the feed velocity uses
+the mean particle mass, rho pi/6 E[d^3] with E[d^3] = (d_max^4 - d_min^4) / (4 (d_max - d_min)).
+The diameters of layer k come from a generator seeded with (seed, k), so a layer that waits, a
+restarted run and an uninterrupted one all draw the same sizes.
 """
 
 from __future__ import annotations
@@ -68,14 +73,21 @@ class SluiceInlet:
 
     def __init__(self, *, width: float, height: float, z: float, diameter: float, density: float,
                  mass_rate: float, start_time: float = 0.0, end_time: float = math.inf, gap: float = 0.02,
-                 axes=(0, 1, 2)):
-        self.lattice = bcc_sluice_lattice(width, height, diameter, gap)
-        self.radius = 0.5 * diameter
+                 diameter_max: float = 0.0, seed: int = 12345):
+        dmax = max(diameter, diameter_max)
+        self.lattice = bcc_sluice_lattice(width, height, dmax, gap)
+        self.d_min, self.d_max = diameter, dmax
+        self.seed = int(seed)
+        self.radius = 0.5 * dmax
         self.density = density
         self.mass_rate = mass_rate
         self.start_time = start_time
         self.end_time = end_time
-        self.particle_mass = density * math.pi / 6.0 * diameter ** 3
+        if dmax > diameter:
+            mean_d3 = (dmax ** 4 - diameter ** 4) / (4.0 * (dmax - diameter))
+        else:
+            mean_d3 = diameter ** 3
+        self.particle_mass = density * math.pi / 6.0 * mean_d3  # mean particle mass
         lin_density = self.particle_mass * self.lattice.per_period / self.lattice.a  # kg/m along z
         self.velocity = mass_rate / lin_density
         # first layer: its back touches the sluice's upstream edge (the back wall)
@@ -103,12 +115,19 @@ class SluiceInlet:
         out[:, 2] = z
         return out
 
+    def radii(self, k: int, n: int) -> np.ndarray:
+        """Radii of the n particles of layer k (deterministic in (seed, k))."""
+        if self.d_max == self.d_min:
+            return np.full(n, 0.5 * self.d_min)
+        rng = np.random.default_rng([self.seed, k])
+        return 0.5 * rng.uniform(self.d_min, self.d_max, n)
+
     def insert(self, system, time: float, dt: float) -> int:
         """Insert every layer that is due and has room; return the number of particles added."""
         added = 0
         while self.due(time):
             pos = self.layer(self.layers_done)
-            rad = np.full(len(pos), self.radius)
+            rad = self.radii(self.layers_done, len(pos))
             if len(pos) and system.overlaps(pos, rad).any():
                 self.backlog_time += dt
                 break
@@ -117,7 +136,7 @@ class SluiceInlet:
             system.add_particles(pos, vel, rad, self.density)
             added += len(pos)
             self.count_inserted += len(pos)
-            self.mass_inserted += len(pos) * self.particle_mass
+            self.mass_inserted += float(np.sum(self.density * 4.0 / 3.0 * math.pi * rad ** 3))
             self.layers_done += 1
             if self.layers_done > 10_000_000:
                 break

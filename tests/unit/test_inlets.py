@@ -98,3 +98,25 @@ def test_blocked_inlet_waits():
         inl.insert(sysm, k * 1e-4, 1e-4)
     assert len(sysm.pos) == n1  # the next layer never fits: it waits
     assert inl.backlog_time > 0
+
+
+def test_polydisperse_feed_sizes_and_rate():
+    sysm = FakeSystem()
+    inl = SluiceInlet(width=0.02, height=0.012, z=0.0, diameter=0.002, diameter_max=0.003, density=2550.0,
+                      mass_rate=0.05, seed=7)
+    # the feed velocity uses the mean mass: E[d^3] = (b^4 - a^4) / (4 (b - a))
+    ed3 = (0.003 ** 4 - 0.002 ** 4) / (4 * 0.001)
+    assert inl.particle_mass == pytest.approx(2550.0 * math.pi / 6 * ed3)
+    dt = 1e-4
+    t = 0.0
+    while t < 1.0 - 1e-12:
+        inl.insert(sysm, t, dt)
+        sysm.advance(dt)
+        t += dt
+    r = sysm.radius
+    assert r.min() >= 0.001 and r.max() <= 0.0015
+    assert np.mean((2 * r) ** 3) == pytest.approx(ed3, rel=0.03)
+    assert inl.mass_inserted == pytest.approx(np.sum(2550.0 * 4 / 3 * math.pi * r ** 3))
+    assert inl.mass_inserted == pytest.approx(0.05, rel=0.06)
+    # the same layer always gets the same sizes (waiting, restarts)
+    assert np.array_equal(inl.radii(5, 10), inl.radii(5, 10))
