@@ -315,8 +315,12 @@ class Simulation:
                 sch["series"].advance(t, dt)
                 last["series"] = sys_.step_count
             if sch["snapshot"].due(t, dt):
+                gas_fields = {}
+                if self.gas is not None:
+                    cd = self.gas.vtk_fields()["cell_data"]
+                    gas_fields = {f"gas_{k}": v for k, v in cd.items()}
                 res.write_snapshot(t, sys_.step_count, pos=sys_.pos, vel=sys_.vel, omega=sys_.omega,
-                                   radius=sys_.radius, ids=sys_.ids)
+                                   radius=sys_.radius, ids=sys_.ids, **gas_fields)
                 sch["snapshot"].advance(t, dt)
                 if self.measure is not None and self.measure.n_samples:
                     # the averages so far, so that a killed run keeps them
@@ -564,8 +568,15 @@ def collision_time(case: Case) -> float:
     return min(tcs)
 
 
+def has_particles(case: Case) -> bool:
+    """Whether the case can hold particles at all (an inlet or initial particles)."""
+    return case.inlet.type != "none" or bool(case.particles.initial) or bool(case.particles.initial_file)
+
+
 def check_time_step(case: Case, log=None) -> float:
-    """dt / t_c; warns above 1/20, refuses above 1/5 unless time.force."""
+    """dt / t_c; warns above 1/20, refuses above 1/5 unless time.force (no particles: 0)."""
+    if not has_particles(case):
+        return 0.0
     tc = collision_time(case)
     ratio = case.time.dt / tc
     if ratio > 0.2 and not case.time.force:
@@ -633,8 +644,11 @@ def describe_case(case: Case) -> list[str]:
                      f"eta_t = {dv['eta_t']:.4g} kg/s, t_c = {dv['t_c']:.4g} s (m* = {meff:.4g} kg)")
     tc = collision_time(case)
     ratio = case.time.dt / tc
-    lines.append(f"time step: dt = {case.time.dt:g} s = t_c/{1 / ratio:.1f} "
-                 f"({'OK' if ratio <= 0.05 else 'WARNING: above t_c/20' if ratio <= 0.2 else 'REFUSED: above t_c/5'})")
+    if has_particles(case):
+        lines.append(f"time step: dt = {case.time.dt:g} s = t_c/{1 / ratio:.1f} "
+                     f"({'OK' if ratio <= 0.05 else 'WARNING: above t_c/20' if ratio <= 0.2 else 'REFUSED: above t_c/5'})")
+    else:
+        lines.append(f"time step: dt = {case.time.dt:g} s (no particles: no contact time-step limit)")
     g = gravity_vector(case)
     om = frame_omega(case)
     lines.append(f"gravity: ({g[0]:.4g}, {g[1]:.4g}, {g[2]:.4g}) m/s2; frame rotation: "
