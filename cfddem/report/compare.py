@@ -173,16 +173,15 @@ def _fig_profiles(runs, path):
 
 
 def _gas_top_arrows(run):
-    """(x, z, ux, uz) of the time-averaged gas velocity in the top layer of gas cells, or None."""
+    """(x, z, ux, uz) of the time-averaged gas velocity in the top layer of gas cells (just
+    below the open top, above the bed), or None when the run has no gas."""
     g = run.gas
-    if not g or "velocity" not in g:
+    if not g or "mean_velocity" not in g:
         return None
-    vel = np.asarray(g["velocity"])
-    if vel.ndim != 4:
-        return None
-    x = np.asarray(g.get("x_centres", []))
-    z = np.asarray(g.get("z_centres", []))
-    if len(x) != vel.shape[0] or len(z) != vel.shape[2]:
+    vel = np.asarray(g["mean_velocity"])
+    x = np.asarray(g.get("x", []))
+    z = np.asarray(g.get("z", []))
+    if vel.ndim != 4 or len(x) != vel.shape[0] or len(z) != vel.shape[2]:
         return None
     top = vel[:, -1, :, :]
     return x, z, top[..., 0], top[..., 2]
@@ -204,13 +203,16 @@ def _fig_top(runs, path):
             x, z, ux, uz = arrows
             X, Z = np.meshgrid(1e3 * x, z, indexing="ij")
             step = max(1, len(z) // 30)
-            ax.quiver(X[:, ::step], Z[:, ::step], ux[:, ::step], uz[:, ::step], color="w", scale_units="xy",
-                      angles="xy", width=0.004)
-            ax.set_title(f"{r.label}: surface speed, gas (top layer) arrows")
+            # x is drawn in mm and z in m: scale the components alike so that arrows point
+            # along the true direction; the fastest arrow spans 20 mm across / 0.02 m along
+            k = 0.02 / max(float(np.nanmax(np.hypot(ux, uz))), 1e-12)
+            ax.quiver(X[:, ::step], Z[:, ::step], 1e3 * k * ux[:, ::step], k * uz[:, ::step], color="w",
+                      scale_units="xy", angles="xy", scale=1.0, width=0.004)
+            ax.set_title(f"{r.label}: surface speed,\ngas velocity below the open top (arrows)", fontsize=9)
         else:
-            ax.set_title(f"{r.label}: surface speed")
+            ax.set_title(f"{r.label}: surface speed", fontsize=9)
         ax.set_xlabel("x [mm]")
-        ax.invert_yaxis()
+    axes[0].invert_yaxis()  # shared y axis: invert once; the entrance at the top
     axes[0].set_ylabel("z down the chute [m]")
     fig.colorbar(im, ax=list(axes), label="surface particle speed [m/s]")
     fig.savefig(path, dpi=110)

@@ -31,8 +31,8 @@ def fake_run(folder, speed, gas, wall, rpm=16.0):
         if gas:
             vg = np.zeros((16, 15, 150, 3))
             vg[..., 2] = 0.5
-            res.write_measurements("gas", {"velocity": vg, "x_centres": np.linspace(0.0025, 0.0775, 16),
-                                           "z_centres": np.linspace(-0.097, 0.797, 150)})
+            res.write_measurements("gas", {"mean_velocity": vg, "x": np.linspace(0.0025, 0.0775, 16),
+                                           "z": np.linspace(-0.097, 0.797, 150)})
         res.write_metadata(wall_time=wall, time_particles=0.8 * wall, time_gas=0.15 * wall if gas else 0.0,
                            time_output=0.05 * wall)
     return folder
