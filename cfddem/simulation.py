@@ -310,7 +310,8 @@ class Simulation:
             # final: make sure the end state is in the series and the VTU frames
             t0 = _time.perf_counter()
             t = sys_.time
-            if sch["series"].due(t, dt) or (final and last["series"] != sys_.step_count):
+            final_row = final and last["series"] != sys_.step_count and res.last_series_time() != t
+            if sch["series"].due(t, dt) or final_row:
                 res.append_series(**self._series_row())
                 sch["series"].advance(t, dt)
                 last["series"] = sys_.step_count

@@ -195,6 +195,11 @@ class ResultsFile:
     def n_series_rows(self) -> int:
         return self._rows
 
+    def last_series_time(self) -> float | None:
+        """Time of the last series row (None when there is none)."""
+        t = self._series.get("time")
+        return t[-1] if t else None
+
     def truncate_after(self, time: float, eps: float = 1e-12) -> None:
         """Drop series rows and snapshots after ``time`` and all measurements (a run resumed
         from a checkpoint at ``time`` writes them again)."""
