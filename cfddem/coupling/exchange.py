@@ -151,7 +151,13 @@ class CoupledGas:
                  closure: str = "beetstra", coupling_interval: int = 10, drag_treatment: str = "implicit",
                  gravity=(0.0, 0.0, 0.0), omega=(0.0, 0.0, 0.0), axis_point=(0.0, 0.0, 0.0),
                  periodic=None, log=None, eps_min: float = 0.3, eps_floor: float | None = None,
-                 superficial_inlets: dict | None = None, **gas_kw):
+                 superficial_inlets: dict | None = None, cfl_stop: float = 1.0, divergence_stop: float = 1e-4,
+                 **gas_kw):
+        # blow-up guards (the run stops with a diagnosis): the explicit advection is unstable
+        # above CFL 1; a mass-balance defect (max |d eps/dt + div(eps u)| dt) above
+        # divergence_stop means continuity is no longer enforced
+        self.cfl_stop = float(cfl_stop)
+        self.divergence_stop = float(divergence_stop)
         if drag_treatment not in ("implicit", "explicit"):
             raise CaseError("gas.drag_treatment", f"'implicit' or 'explicit', got {drag_treatment!r}")
         if int(coupling_interval) < 1:
@@ -306,6 +312,16 @@ class CoupledGas:
                           n_low_porosity_cells=float(por.n_low), n_clipped_cells=float(n_clip))
         if not info.ok:
             return CouplingStatus(flag="gas", message=f"gas step failed at t = {sys_.time:.6g} s: {info.message}")
+        if info.cfl > self.cfl_stop:
+            return CouplingStatus(
+                flag="gas", message=f"gas CFL number {info.cfl:.3g} above {self.cfl_stop:g} at t = {sys_.time:.6g} s "
+                f"(gas step {dtg:.3g} s, stable step {gas.max_stable_dt():.3g} s): the gas step is too large for "
+                f"this flow; lower gas.coupling_interval (cfddem check recommends one)")
+        if info.max_divergence > self.divergence_stop:
+            return CouplingStatus(
+                flag="gas", message=f"gas mass balance defect {info.max_divergence:.3g} above "
+                f"{self.divergence_stop:g} at t = {sys_.time:.6g} s: the pressure solve no longer enforces "
+                f"continuity (porosity changing too fast for the gas step; lower gas.coupling_interval)")
         self.n_couplings += 1
         # --- 4.-6. forces on the particles -------------------------------------------------
         if n:
