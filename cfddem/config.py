@@ -102,6 +102,7 @@ SCHEMA: dict[str, dict] = {
     "checkpoint": {
         "interval": _nonneg(0.0, "s", "checkpoint every this much simulated time (0: off)"),
         "wall_interval": _nonneg(600.0, "s (wall)", "checkpoint every this much wall time (0: off)"),
+        "every_steps": Key("int", 0, "-", "checkpoint every this many particle steps (0: off)", lo=0),
         "keep": Key("int", 2, "-", "number of newest checkpoints kept", lo=1),
     },
     "gravity": {

@@ -298,6 +298,7 @@ class Simulation:
         max_steps = case.time.max_steps or None
         wall_limit = case.time.wall_time_limit or None
         wall_ckpt = case.checkpoint.wall_interval or None
+        every_steps = case.checkpoint.every_steps
         last_ckpt_wall = _time.perf_counter()
         progress = Progress(end_time=self.end_time, interval=case.output.progress_interval) \
             if self.show_progress else None
@@ -346,6 +347,8 @@ class Simulation:
                 later = [x for x in targets if x > t + 0.5 * dt]
                 n = max(1, int(round((min(later) - t) / dt))) if later else 1
                 n = min(n, exit_every - (sys_.step_count % exit_every))
+                if every_steps:
+                    n = min(n, every_steps - (sys_.step_count % every_steps))
                 if max_steps is not None:
                     n = max(1, min(n, max_steps - sys_.step_count))
                 t0 = _time.perf_counter()
@@ -367,6 +370,9 @@ class Simulation:
                 ck = sch.get("checkpoint")
                 if ck is not None and ck.due(sys_.time, dt):
                     ck.advance(sys_.time, dt)
+                    self.write_checkpoint()
+                    last_ckpt_wall = _time.perf_counter()
+                elif every_steps and sys_.step_count % every_steps == 0:
                     self.write_checkpoint()
                     last_ckpt_wall = _time.perf_counter()
                 elif wall_ckpt is not None and _time.perf_counter() - last_ckpt_wall >= wall_ckpt:
@@ -430,6 +436,7 @@ class Simulation:
                     c["count_out"] += k
                     c["mass_out"] += m
                     pos = sys_.pos
+            self._check_walls_crossed()
             margin = self.case.exit.lost_margin
             lost = np.any((pos < self.box_lo - margin) | (pos > self.box_hi + margin), axis=1)
             if lost.any():
@@ -438,6 +445,49 @@ class Simulation:
                 c["mass_lost"] += m
                 self.log.warning("t = %.4f s: %d particle(s) left the domain and were removed as lost", sys_.time, k)
         self.timings["inlet_exit"] += _time.perf_counter() - t0
+
+    def _check_walls_crossed(self) -> None:
+        """Stop with a diagnosis when a particle went through a wall since the last check: in
+        front of the wall (and within its extent) then, fully behind it (and within its extent)
+        now.  Particles that fly over a wall's edge are not affected."""
+        sys_ = self.system
+        pos, ids, rad = sys_.pos, sys_.ids, sys_.radius
+        prev = getattr(self, "_prev_check", None)
+        self._prev_check = (ids.copy(), pos.copy(), sys_.time, sys_.step_count)
+        if prev is None or not len(ids):
+            return
+        pid, ppos, pt, pstep = prev
+        order = np.argsort(pid)
+        k = np.searchsorted(pid[order], ids)
+        k = np.minimum(k, len(pid) - 1)
+        known = pid[order][k] == ids
+        if not known.any():
+            return
+        cur = pos[known]
+        old = ppos[order][k[known]]
+        r = rad[known]
+        for w in self.walls:
+            n = w.normal / np.linalg.norm(w.normal)
+            h_now = (cur - w.point) @ n
+            h_old = (old - w.point) @ n
+            crossed = (h_old >= 0.0) & (h_now < -r)
+            if w.kind == "rectangle" and crossed.any():
+                a1 = w.u_axis - np.dot(w.u_axis, n) * n
+                a1 /= np.linalg.norm(a1)
+                a2 = np.cross(n, a1)
+                for q in (cur, old):
+                    d = q - w.point
+                    crossed &= (np.abs(d @ a1) <= w.half_extents[0]) & (np.abs(d @ a2) <= w.half_extents[1])
+            if crossed.any():
+                i = int(np.flatnonzero(crossed)[0])
+                j = np.flatnonzero(known)[i]
+                speed = float(np.linalg.norm(sys_.vel[j]))
+                ratio = self.dt / collision_time(self.case)
+                raise RunError(
+                    f"step {sys_.step_count}, t = {sys_.time:.6g} s: particle {int(ids[j])} went through wall "
+                    f"'{w.name}' since step {pstep} (now {-h_now[i] * 1e3:.3g} mm behind it, speed {speed:.3g} m/s); "
+                    f"likely cause: time step too large for this stiffness and speed "
+                    f"(dt = {20 * ratio:.2g} t_c/20, the particle moves {speed * self.dt / r[i]:.2g} radii per step)")
 
     def _series_row(self) -> dict:
         s = self.system

@@ -380,10 +380,15 @@ class ParticleSystem:
             if self._last_ov > self.max_overlap_ratio_limit:
                 who, val = it.worst_overlap(self._npairs, self._cur["pi"], self._cur["pj"], self._pos,
                                             self._radius, self._plen, self.n, self._wgeom, self.nw)
-                pid = int(self._ids[who]) if who >= 0 else -1
+                if who >= 0 and val >= self.max_overlap_ratio_limit:
+                    pid = int(self._ids[who])
+                    what = f"particle id {pid} has overlap/radius = {val:.3g}"
+                else:  # the overlapping particle has moved on (e.g. through a wall) since the force evaluation
+                    pid, val = -1, self._last_ov
+                    what = f"a contact reached overlap/radius = {val:.3g}"
                 return self._fail(
                     "overlap", pid, float(val),
-                    f"step {self.step_count}: particle id {pid} has overlap/radius = {val:.3g} > "
+                    f"step {self.step_count}: {what} > "
                     f"{self.max_overlap_ratio_limit:g}; likely cause: {self._dt_hint()} "
                     "(or particles inserted into each other / too fast)", s + 1)
         return StepStatus(ok=True, steps_done=n_steps)

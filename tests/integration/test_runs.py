@@ -212,3 +212,43 @@ def test_blow_up_is_diagnosed(tmp_path):
     assert json.loads((out / "run.json").read_text())["status"] == "failed"
     m = read_measurements(out / "results.h5")
     assert "diagnostic" in m and m["diagnostic"]["pos"].shape[1] == 3
+
+
+def test_particle_through_a_wall_is_diagnosed(tmp_path):
+    d = tmp_path / "tunnel"
+    d.mkdir()
+    (d / "case.toml").write_text("""
+[time]
+end_time = 0.01
+dt = 2e-4
+force = true
+[output]
+vtk = false
+plots = false
+[geometry]
+type = "box"
+lo = [0, 0, 0]
+hi = [0.05, 0.05, 0.05]
+[gravity]
+g = 0.0
+[particles]
+max_overlap_ratio = 1.0
+initial = [{pos = [0.025, 0.005, 0.025], radius = 0.0015, vel = [0, -20.0, 0]}]
+[measurements]
+enabled = false
+""")
+    p = subprocess.run(CLI + ["run", str(d), "--out", str(tmp_path / "o"), "--quiet"], capture_output=True,
+                       text=True, timeout=300)
+    assert p.returncode == 3, p.stderr
+    assert "went through wall 'y-'" in p.stderr and "time step too large" in p.stderr
+    assert len(p.stderr.strip().splitlines()) == 1
+
+
+def test_checkpoint_every_steps(tmp_path):
+    d = box_case(tmp_path, end=0.01)
+    out = tmp_path / "run"
+    s = Simulation(load_case(d, overrides=["checkpoint.every_steps=200", "checkpoint.keep=10"]), out, echo=False,
+                   progress=False).run()
+    assert s.status == "done" and s.steps == 500
+    names = sorted(p.name for p in (out / "checkpoints").glob("ckpt_*.h5"))
+    assert names == ["ckpt_000000000200.h5", "ckpt_000000000400.h5"]
