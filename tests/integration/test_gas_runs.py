@@ -38,3 +38,14 @@ def test_gas_only_chute_writes_gas_fields(tmp_path):
     pvd = (out / "vtk" / "gas.pvd").read_text()
     assert pvd.count("<DataSet") == 3
     assert len(list((out / "vtk" / "gas").glob("*.vtu"))) == 3
+
+
+def test_gas_step_too_large_is_diagnosed(tmp_path):
+    out = tmp_path / "cfl"
+    p = subprocess.run(CLI + ["run", str(CASES / "gas_chute_16rpm"), "--out", str(out), "--quiet",
+                              "--set", "gas.cells=[8, 6, 40]", "--set", "time.dt=0.1", "--set", "time.end_time=1.0"],
+                       capture_output=True, text=True, timeout=600)
+    assert p.returncode == 3, p.stderr[-2000:]
+    err = p.stderr.strip().splitlines()
+    assert len(err) == 1 and "gas CFL number" in err[0] and "gas.coupling_interval" in err[0]
+    assert read_series(out / "results.h5")["time"][0] == 0.0  # what was written before stays
