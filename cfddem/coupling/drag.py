@@ -321,11 +321,7 @@ def ergun_gidaspow_scalar(eps, re):
     """Scalar twin of :func:`ergun_gidaspow`."""
     if eps < 0.8:
         return (150.0 * (1.0 - eps) + 1.75 * re) / (18.0 * eps * eps)
-    if re < 1000.0:
-        cdre = 1.0 + 0.15 * abs(re) ** 0.687
-    else:
-        cdre = 0.44 * re / 24.0
-    return cdre * eps**-3.65
+    return wen_yu_scalar(eps, re)
 
 
 @kernel(inline="always")

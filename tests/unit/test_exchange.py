@@ -8,16 +8,7 @@ from cfddem.gas import NoSlip, Periodic, StaggeredGrid
 from cfddem.particles.contact import LinearContact
 from cfddem.particles.system import ParticleSystem
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    """Tiny grids: one numba thread avoids the thread start-up cost of every parallel kernel
-    (30x faster on a loaded 2-core machine); thread independence is tested with the kernels."""
-    import numba
-
-    n = numba.get_num_threads()
-    numba.set_num_threads(1)
-    yield
-    numba.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_numba_thread")
 
 
 L = 0.02

@@ -1,6 +1,5 @@
 """Staggered grid, located fields and the tiny operators (cfddem.gas.grid / operators)."""
 
-import numba
 import numpy as np
 import pytest
 
@@ -9,12 +8,7 @@ from cfddem.gas import operators as op
 from cfddem.gas.grid import Field
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    n = numba.get_num_threads()
-    numba.set_num_threads(1)
-    yield
-    numba.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_numba_thread")
 
 
 def make_grid(shape=(5, 4, 3), halo=2):

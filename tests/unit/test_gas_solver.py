@@ -8,12 +8,7 @@ from cfddem.errors import CaseError
 from cfddem.gas import GasSolver, Inlet, LidCrossWind, NoSlip, PressureOutlet, StaggeredGrid
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    n = numba.get_num_threads()
-    numba.set_num_threads(1)
-    yield
-    numba.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_numba_thread")
 
 
 def chute_section(advection="tvd", viscosity="explicit"):

@@ -10,14 +10,7 @@ from cfddem.coupling.exchange import build_coupled_gas, coupling_diagnostics
 from cfddem.simulation import Simulation
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    import numba
-
-    n = numba.get_num_threads()
-    numba.set_num_threads(1)
-    yield
-    numba.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_numba_thread")
 
 
 @pytest.mark.parametrize("cells", [pytest.param((16, 15, 150), marks=pytest.mark.slow), (8, 5, 50)])

@@ -19,14 +19,7 @@ FB = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(FB)
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    import numba
-
-    n = numba.get_num_threads()
-    numba.set_num_threads(1)
-    yield
-    numba.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_numba_thread")
 
 
 def closure_pressure_drop(sys_, cg, U, closure="beetstra"):

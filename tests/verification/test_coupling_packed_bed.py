@@ -17,14 +17,7 @@ RHO, MU = 1.2, 1.8e-5
 PERIODIC = {s: Periodic() for s in ("x-", "x+", "y-", "y+", "z-", "z+")}
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    import numba
-
-    n = numba.get_num_threads()
-    numba.set_num_threads(1)
-    yield
-    numba.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_numba_thread")
 
 
 def _bed(closure, G, d=0.8e-3, per_cell=4, cells=4, h=4e-3):

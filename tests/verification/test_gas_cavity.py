@@ -5,19 +5,13 @@ periodic cell in z), TVD advection, marched to a steady state.  Default tier: se
 viscosity with a large step; slow tier: the same with explicit viscosity.  Bound: 2 % of the
 lid speed at all 17 tabulated points of each profile (both runs are within 0.9 %)."""
 
-import numba
 import numpy as np
 import pytest
 
 from cfddem.gas import GasSolver, NoSlip, Periodic, StaggeredGrid, Velocity
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    n = numba.get_num_threads()
-    numba.set_num_threads(1)
-    yield
-    numba.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_numba_thread")
 
 
 Y_GHIA = np.array([1.0, 0.9766, 0.9688, 0.9609, 0.9531, 0.8516, 0.7344, 0.6172, 0.5, 0.4531, 0.2813,

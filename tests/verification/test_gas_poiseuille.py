@@ -8,19 +8,13 @@ rate (e.g. White, Viscous Fluid Flow, eq. 3-48, a = b = L/2) is
       = G L^4 / (28.454 mu).
 """
 
-import numba
 import numpy as np
 import pytest
 
 from cfddem.gas import GasSolver, NoSlip, Periodic, StaggeredGrid
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    n = numba.get_num_threads()
-    numba.set_num_threads(1)
-    yield
-    numba.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_numba_thread")
 
 
 def q_exact(G, L, mu):

@@ -1,19 +1,13 @@
 """Prescribed, time-varying porosity: the discrete porous continuity equation
 d(eps)/dt + div(eps_f u) = 0 holds to 1e-10 (times dt) every step."""
 
-import numba
 import numpy as np
 import pytest
 
 from cfddem.gas import GasSolver, Inlet, NoSlip, Periodic, PressureOutlet, StaggeredGrid
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    n = numba.get_num_threads()
-    numba.set_num_threads(1)
-    yield
-    numba.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_numba_thread")
 
 
 def eps_field(g, t):

@@ -10,19 +10,13 @@ chute's vertical axis, box tilted by 30 degrees).  The discrete operators are ex
 these linear fields, so the state must stay put to round-off and solver tolerance.
 """
 
-import numba
 import numpy as np
 import pytest
 
 from cfddem.gas import GasSolver, LidCrossWind, StaggeredGrid
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    n = numba.get_num_threads()
-    numba.set_num_threads(1)
-    yield
-    numba.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_numba_thread")
 
 
 @pytest.mark.parametrize("advection", ["tvd", "central"])

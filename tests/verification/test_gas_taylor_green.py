@@ -6,19 +6,13 @@ temporal error shrinks as fast as the second-order spatial error; the measured o
 max-norm velocity error over three grids must be 2 +- 0.2 for the central scheme.
 """
 
-import numba
 import numpy as np
 import pytest
 
 from cfddem.gas import GasSolver, Periodic, StaggeredGrid
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    n = numba.get_num_threads()
-    numba.set_num_threads(1)
-    yield
-    numba.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_numba_thread")
 
 
 class TaylorGreen:
