@@ -445,7 +445,7 @@ def _vec(key: str, v, n=3) -> list[float]:
 
 
 def _check_consistency(r: dict, case_dir: Path) -> None:
-    g, p, inl, geo = r["geometry"], r["particles"], r["inlet"], r["geometry"]
+    p, inl, geo = r["particles"], r["inlet"], r["geometry"]
     d = p["diameter"]
     if p["diameter_max"] and p["diameter_max"] < d:
         raise CaseError("particles.diameter_max", f"{p['diameter_max']:g} is smaller than particles.diameter = {d:g}")

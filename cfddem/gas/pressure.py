@@ -107,7 +107,6 @@ class PressureSolver:
         I, J, K = I.ravel(), J.ravel(), K.ravel()
         cell = np.arange(N)
         n = (nx, ny, nz)
-        idx = (I, J, K)
         # flat face index offsets: coefficient vector = [ax.ravel(), ay.ravel(), az.ravel()]
         fshapes = [(nx + 1, ny, nz), (nx, ny + 1, nz), (nx, ny, nz + 1)]
         foff = np.cumsum([0] + [int(np.prod(s)) for s in fshapes])
