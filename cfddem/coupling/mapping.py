@@ -206,26 +206,22 @@ def _axis_weights(x, x0, h, n, per, lo, hi, bmin, smin, smax):
             s -= n
         if s < 0.0:
             s = 0.0
-        i0 = int(np.floor(s))
-        if i0 > n - 1:
-            i0 = n - 1
-        f = s - i0
-        a0 = i0
-        a1 = i0 + 1
-        if a1 >= n:
-            a1 -= n
-        b = i0
     else:
         if s < smin:
             s = smin
         if s > smax:
             s = smax
-        i0 = int(np.floor(s))
-        if i0 > n - 1:
-            i0 = n - 1
-        f = s - i0
-        a0 = i0
-        a1 = i0 + 1
+    i0 = int(np.floor(s))
+    if i0 > n - 1:
+        i0 = n - 1
+    f = s - i0
+    a0 = i0
+    a1 = i0 + 1
+    if per == 1:
+        if a1 >= n:
+            a1 -= n
+        b = i0
+    else:
         if a0 < lo:
             a0 = lo
         if a0 > hi:
