@@ -128,7 +128,12 @@ class Simulation:
         from .particles.system import ParticleSystem
 
         case = self.case
-        self.walls = wall_specs(case)
+        from .scenes import scene_class
+
+        cls = scene_class(case.geometry.type)
+        self.scene = cls(self) if cls is not None else None
+        specs = self.scene.wall_specs() if self.scene is not None else None
+        self.walls = specs if specs is not None else wall_specs(case)
         self.box_lo, self.box_hi = walls_bounding_box(self.walls, case)
         set_threads(self.threads)
         periodic = (None, None, None)
@@ -198,6 +203,8 @@ class Simulation:
             st["measure"] = self.measure.get_state()
         if self.gas is not None:
             st["gas"] = self.gas.get_state()
+        if self.scene is not None:
+            st["scene"] = self.scene.get_state()
         return st
 
     def set_state(self, st: dict) -> None:
@@ -213,6 +220,8 @@ class Simulation:
             self.measure.set_state(st["measure"])
         if self.gas is not None:
             self.gas.set_state(st["gas"])
+        if self.scene is not None and "scene" in st:
+            self.scene.set_state(st["scene"])
 
     def write_checkpoint(self) -> Path:
         from .io.checkpoint import write_checkpoint
@@ -327,6 +336,7 @@ class Simulation:
                 if self.measure is not None and self.measure.n_samples:
                     # the averages so far, so that a killed run keeps them
                     res.write_measurements(self.measure.group, self.measure.results(), self.measure.attrs())
+                self._write_scene_measurements(res)
             if pv is not None and (sch["vtk"].due(t, dt) or (final and last["vtk"] != sys_.step_count)):
                 pv.write(t, sys_.pos, sys_.radius, vel=sys_.vel, omega=sys_.omega, ids=sys_.ids,
                          gas=self.gas.vtk_fields() if self.gas is not None else None)
@@ -336,17 +346,24 @@ class Simulation:
             self.timings["output"] += _time.perf_counter() - t0
 
         try:
+            scene = self.scene
             if not self.resume:
+                if scene is not None:
+                    scene.start()
                 self._feed_and_drain()
                 outputs()
             while sys_.time < self.end_time - 0.5 * dt:
                 t = sys_.time
                 targets = [self.end_time] + [s.next_time for s in sch.values()]
+                if scene is not None:
+                    targets.append(scene.next_time(t))
                 if self.inlet is not None and self.inlet.start_time <= t < self.inlet.end_time:
                     targets.append(self.inlet._due_time(self.inlet.layers_done))
                 later = [x for x in targets if x > t + 0.5 * dt]
                 n = max(1, int(round((min(later) - t) / dt))) if later else 1
                 n = min(n, exit_every - (sys_.step_count % exit_every))
+                if scene is not None:
+                    n = max(1, min(n, scene.max_steps()))
                 if every_steps:
                     n = min(n, every_steps - (sys_.step_count % every_steps))
                 if max_steps is not None:
@@ -359,6 +376,10 @@ class Simulation:
                 if not st.ok:
                     raise RunError(st.message)
                 self._feed_and_drain()
+                if scene is not None:
+                    t0 = _time.perf_counter()
+                    scene.after_steps()
+                    self.timings["measurements"] += _time.perf_counter() - t0
                 if self.measure is not None and sch["measure"].due(sys_.time, dt):
                     t0 = _time.perf_counter()
                     self.measure.measure(sys_.time, sys_.pos, sys_.vel, sys_.radius)
@@ -383,6 +404,10 @@ class Simulation:
                     self.write_checkpoint()
                     status, message = "interrupted", f"{name} received: checkpoint written at t = {sys_.time:.6g} s " \
                                                      f"(continue with --resume)"
+                    break
+                reason = scene.stop_reason() if scene is not None else None
+                if reason:
+                    status, message = "done", reason
                     break
                 if max_steps is not None and sys_.step_count >= max_steps:
                     self.write_checkpoint()
@@ -500,7 +525,17 @@ class Simulation:
                    mean_velocity_z=float(np.mean(s.vel[:, 2])) if s.n else 0.0)
         if self.gas is not None:
             row.update(self.gas.series_row())
+        if self.scene is not None:
+            row.update({k: float(v) for k, v in self.scene.series().items()})
         return row
+
+    def _write_scene_measurements(self, res) -> None:
+        if self.scene is None:
+            return
+        m = self.scene.measurements()
+        if m is not None:
+            group, arrays, attrs = m
+            res.write_measurements(group, arrays, attrs)
 
     def _finish(self, res, status: str, message: str, t_wall0: float) -> RunSummary:
         wall = _time.perf_counter() - t_wall0
@@ -510,6 +545,10 @@ class Simulation:
                 res.write_measurements(self.measure.group, self.measure.results(), self.measure.attrs())
             except Exception as e:  # keep what is written; say why
                 self.log.error("could not store the measurements: %s", e)
+        try:
+            self._write_scene_measurements(res)
+        except Exception as e:
+            self.log.error("could not store the scene measurements: %s", e)
         if self.gas is not None:
             try:
                 self.gas.write_measurements(res)

@@ -24,7 +24,7 @@ from cfddem.errors import CaseError
 from cfddem.particles import integrate as it
 from cfddem.particles import neighbours as nb
 from cfddem.particles.contact import P_KN, P_KT, LinearContact
-from cfddem.particles.walls import Wall, pack_walls
+from cfddem.particles.walls import KIND_OFF, Wall, pack_walls
 
 
 @dataclass
@@ -111,6 +111,9 @@ class ParticleSystem:
         self.n_rebuilds = 0
         self._fw = np.zeros((max(self.nw, 1), 3))
         self._tw = np.zeros((max(self.nw, 1), 3))
+        # wall motion: kind saved while a wall is switched off; walls with v != 0 are translated
+        self._wkind = self._wgeom[:, 0].copy()
+        self._moving = np.flatnonzero(np.any(self._wgeom[: self.nw, 16:19] != 0.0, axis=1))
 
     # ------------------------------------------------------------------ storage
     def _alloc_particles(self, cap):
@@ -343,6 +346,8 @@ class ParticleSystem:
         failed run is for diagnosis only).
         """
         if self.n == 0:
+            if len(self._moving):
+                self._translate_moving_walls(n_steps * self.dt)
             self.time += n_steps * self.dt
             self.step_count += n_steps
             return StepStatus(ok=True, steps_done=n_steps)
@@ -363,6 +368,9 @@ class ParticleSystem:
                 m2 = kd(self.n, self._pos, self._vel, self._omega, self._force, self._torque,
                         self._mass, self._inertia, self._ext_force, self._ext_torque, self._has_ext, dt,
                         self._rotating, self._Rv, self._Rw, self._plen, self._plo, self._ref)
+            if len(self._moving):
+                # walls move with the particles' drift: geometry at t + dt for the new forces
+                self._translate_moving_walls(dt)
             if m2 > (0.5 * self._skin_built) ** 2 or self._need_rebuild or not math.isfinite(m2):
                 try:
                     self._rebuild()
@@ -452,6 +460,61 @@ class ParticleSystem:
         it.reduce_walls(self.n, self.nw, self._won, self._wfw, self._wtw, self._fw, self._tw)
         return self._tw[: self.nw].copy()
 
+    # ------------------------------------------------------------------ wall control
+    def _wall_index(self, wall) -> int:
+        if isinstance(wall, str):
+            for k, w in enumerate(self.walls):
+                if w.name == wall:
+                    return k
+            raise KeyError(f"no wall named {wall!r} (walls: {[w.name for w in self.walls]})")
+        k = int(wall)
+        if not 0 <= k < self.nw:
+            raise IndexError(f"wall index {k} out of range (0..{self.nw - 1})")
+        return k
+
+    def set_wall_active(self, wall, active: bool) -> None:
+        """Switch wall ``wall`` (index or name) on or off.  Switching off drops its contacts and
+        their tangential history at once (a silo gate that opens); switching on restores its
+        kind (the caller makes sure no particle sits inside it)."""
+        k = self._wall_index(wall)
+        self._wgeom[k, 0] = self._wkind[k] if active else KIND_OFF
+        if not active:
+            n = self.n
+            self._won[:n, k] = 0
+            self._wfn[:n, k] = 0.0
+            self._whist[:n, k] = 0.0
+            self._wfw[:n, k] = 0.0
+            self._wtw[:n, k] = 0.0
+        self._forces_stale = True
+
+    def wall_active(self, wall) -> bool:
+        return bool(self._wgeom[self._wall_index(wall), 0] >= 0.0)
+
+    def set_wall_velocity(self, wall, velocity) -> None:
+        """Translation velocity of wall ``wall`` (m/s, in the simulation frame): from now on the
+        wall moves by v dt per step and v enters its relative contact velocity."""
+        k = self._wall_index(wall)
+        self._wgeom[k, 16:19] = np.asarray(velocity, float).reshape(3)
+        self._moving = np.flatnonzero(np.any(self._wgeom[: self.nw, 16:19] != 0.0, axis=1))
+
+    def wall_position(self, wall) -> np.ndarray:
+        """Current centre point p of wall ``wall``."""
+        return self._wgeom[self._wall_index(wall), 1:4].copy()
+
+    def move_wall(self, wall, displacement) -> None:
+        """Translate wall ``wall`` (its point and torque reference) by ``displacement`` now."""
+        k = self._wall_index(wall)
+        d = np.asarray(displacement, float).reshape(3)
+        self._wgeom[k, 1:4] += d
+        self._wref[k] += d
+        self._forces_stale = True
+
+    def _translate_moving_walls(self, dt: float) -> None:
+        for k in self._moving:
+            d = dt * self._wgeom[k, 16:19]
+            self._wgeom[k, 1:4] += d
+            self._wref[k] += d
+
     def pairs(self) -> np.ndarray:
         """(n_pairs, 2) current neighbour pairs as particle *ids* (min id, max id)."""
         if self._need_rebuild and self.n:
@@ -468,7 +531,8 @@ class ParticleSystem:
         st: dict = dict(n=n, time=self.time, step_count=self.step_count, next_id=self._next_id,
                         npairs=self._npairs, n_built=self._n_built, skin_built=self._skin_built,
                         need_rebuild=int(self._need_rebuild), forces_stale=int(self._forces_stale),
-                        last_ov=self._last_ov, pending_m2=self._pending_m2)
+                        last_ov=self._last_ov, pending_m2=self._pending_m2,
+                        w_geom=self._wgeom.copy(), w_ref=self._wref.copy())
         for name in _PARTICLE_ARRAYS + _WALL_ARRAYS:
             st["p_" + name] = getattr(self, "_" + name)[:n].copy()
         cur = self._cur
@@ -505,6 +569,10 @@ class ParticleSystem:
         self._forces_stale = bool(state["forces_stale"])
         self._last_ov = float(state["last_ov"])
         self._pending_m2 = float(state["pending_m2"])
+        if "w_geom" in state:  # moved or switched walls
+            self._wgeom[...] = np.asarray(state["w_geom"]).reshape(self._wgeom.shape)
+            self._wref[...] = np.asarray(state["w_ref"]).reshape(self._wref.shape)
+            self._moving = np.flatnonzero(np.any(self._wgeom[: self.nw, 16:19] != 0.0, axis=1))
         self.time = float(state["time"])
         self.step_count = int(state["step_count"])
         self._next_id = int(state["next_id"])

@@ -6,9 +6,12 @@ contact-parameter row (:mod:`cfddem.particles.contact`).  Geometry row layout::
     [kind, p(3), n(3), a1(3), a2(3), h1, h2, v(3), ref(3)]
 
 ``kind`` 0 = infinite plane through p with unit normal n; 1 = rectangle centred at p spanned by
-unit in-plane axes a1, a2 with half-extents h1, h2.  v is the wall velocity (used in the relative
-contact velocity; the geometry does not move yet), ref the point about which the torque exerted
-on the wall is accumulated.  New kinds (cylinders, hopper cones) add a branch in
+unit in-plane axes a1, a2 with half-extents h1, h2; a negative kind (``KIND_OFF``) is a wall
+switched off (no contact; :meth:`ParticleSystem.set_wall_active`, e.g. a silo gate).  v is the
+wall velocity: it enters the relative contact velocity, and :class:`ParticleSystem` translates a
+wall with non-zero v by v dt every step (its position p(t) = p(t0) + v (t - t0), and the
+reference point moves with it); ref the point about which the torque exerted on the wall is
+accumulated.  New kinds (cylinders, hopper cones) add a branch in
 :func:`wall_contact` that returns the same (overlap, outward normal, contact point).
 
 One-sided: particles live on the +n side.  For a plane the contact exists while the centre
@@ -32,6 +35,7 @@ from cfddem.particles.contact import LinearContact
 WALL_NGEOM = 20
 KIND_PLANE = 0
 KIND_RECT = 1
+KIND_OFF = -1.0
 
 
 def _unit(key, v):
@@ -126,6 +130,8 @@ def wall_contact_s(kind, g1, g2, g3, g4, g5, g6, g7, g8, g9, g10, g11, g12, g13,
     Returns (overlap, nx, ny, nz, qx, qy, qz): overlap > 0 means contact, n the unit normal from
     the wall towards the sphere centre, q the contact point on the wall.
     """
+    if kind < 0.0:  # switched off
+        return -1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0
     px = x - g1
     py = y - g2
     pz = z - g3
