@@ -78,6 +78,54 @@ def _contact_section(mu_default: float, e_n_default: float) -> dict:
     }
 
 
+def _wall_override(what: str) -> dict:
+    """Per-wall contact overrides of the silo (unset: contact.particle_wall)."""
+    return {k: Key("float", None, u, f"{what}: {doc} (default: contact.particle_wall.{k})", lo=0.0)
+            for k, u, doc in (("mu", "-", "sliding friction"), ("mu_r", "-", "rolling friction"),
+                              ("e_n", "-", "normal restitution"), ("e_t", "-", "tangential restitution"),
+                              ("k_n", "N/m", "normal stiffness"), ("E", "Pa", "Young's modulus (hertz_mindlin)"),
+                              ("nu", "-", "Poisson ratio (hertz_mindlin)"), ("e", "-", "restitution (hertz_mindlin)"))}
+
+
+_SILO_SCHEMA = {
+    "width": _pos(0.15, "m", "inner width of the planar silo (x from 0 to width; y up, the outlet plane at y = 0)"),
+    "depth": _pos(0.04, "m", "distance between the front (z = 0) and back (z = depth) walls"),
+    "height": _nonneg(0.0, "m", "height of the side walls above the outlet plane (0: the top of the fill lattice + 2 d)"),
+    "outlet_width": _pos(0.04, "m", "width b of the slot outlet (full depth), centred at x = width/2"),
+    "hopper_angle_deg": _f(0.0, "deg", "hopper wall inclination measured from the HORIZONTAL (0: flat bottom; "
+                           "60: walls at 60 deg to the horizontal, 30 deg from the vertical)", lo=0.0, hi=80.0),
+    "lip": _nonneg(0.0, "m", "thickness of the bottom plate: vertical lip walls line the slot from y = -lip to 0 and "
+                   "the gate closes it at y = -lip (0: one particle diameter)"),
+    "removal_depth": _nonneg(0.0, "m", "particles whose centre falls below y = -removal_depth are removed as "
+                             "discharged (0: lip + 1.5 d)"),
+    "n_particles": Key("int", 2000, "-", "particles of the fill lattice", lo=1),
+    "fill": Key("str", "lattice", "-", "'lattice': a loose jittered lattice above the bottom, dropped and settled",
+                choices=("lattice",)),
+    "lattice_gap": _f(0.12, "-", "fill lattice spacing d (1 + lattice_gap)", lo=0.0, lo_open=True, hi=2.0),
+    "lattice_jitter": _f(0.08, "-", "random displacement of each lattice site, up to +-jitter d / 2 per axis "
+                         "(seeded by particles.seed; must be below lattice_gap)", lo=0.0, hi=2.0),
+    "gate": Key("str", "settled", "-", "'time': the gate opens at gate_time; 'settled': at the first check at or "
+                "after gate_time where the kinetic energy per particle is below settle_energy",
+                choices=("time", "settled")),
+    "gate_time": _nonneg(0.3, "s", "gate opening time ('time') or earliest opening time ('settled')"),
+    "settle_energy": _pos(2e-9, "J", "kinetic energy per particle below which the fill counts as settled"),
+    "settle_check_interval": _pos(0.01, "s", "interval of the settled / clogged / empty checks"),
+    "clog_time": _pos(0.5, "s", "no outflow for this long while particles remain just above the slot: clogged "
+                      "(the run stops); with none there: discharge ended (empty)"),
+    "fit_range": Key("floats", [0.2, 0.8], "-", "mass flow rate: linear fit of discharged mass against time between "
+                     "these fractions of the final discharged mass"),
+    "field_cell": _nonneg(0.0, "m", "cell size of the time-averaged x-y velocity field (0: 2 d)"),
+    "field_interval": _pos(0.01, "s", "sampling interval of the velocity field during discharge"),
+    "field_start": _nonneg(0.1, "s", "velocity field: start averaging this long after the gate opened"),
+    "channel_fraction": _f(0.1, "-", "flow-channel boundary: where the downward speed falls below this fraction "
+                           "of the centreline speed", lo=0.0, lo_open=True, hi=1.0, hi_open=True),
+    "front_back": _wall_override("front and back walls"),
+    "sides": _wall_override("side walls"),
+    "bottom": _wall_override("bottom plates or hopper walls, and the slot lips"),
+    "gate_wall": _wall_override("gate"),
+}
+
+
 SCHEMA: dict[str, dict] = {
     "case": {
         "name": Key("str", "", "-", "name of the case (default: the case folder's name)"),
@@ -135,8 +183,8 @@ SCHEMA: dict[str, dict] = {
     },
     "geometry": {
         "type": Key("str", "chute", "-", "'chute': floor + two side walls (+ a back wall at the entrance); "
-                    "'box': six walls lo..hi; 'none': walls only from [[geometry.walls]]",
-                    choices=("chute", "box", "none")),
+                    "'box': six walls lo..hi; 'silo': the planar silo of [silo]; 'none': walls only from [[geometry.walls]]",
+                    choices=("chute", "box", "silo", "none")),
         "width": _pos(0.08, "m", "chute width (x from 0 to width)"),
         "depth": _pos(0.045, "m", "height of the chute side walls (y from 0 to depth)"),
         "length": _pos(0.9, "m", "chute length (z from z_start to z_start + length)"),
@@ -148,6 +196,7 @@ SCHEMA: dict[str, dict] = {
         "walls": Key("tables", [], "-", "extra walls: [[geometry.walls]] with type = 'plane' (point, normal) or "
                      "'rectangle' (point = centre, normal, u_axis, half_extents = [a, b]); optional mu, mu_r, e_n, e_t, k_n"),
     },
+    "silo": _SILO_SCHEMA,
     "inlet": {
         "type": Key("str", "none", "-", "'sluice': bcc lattice layers across the chute entrance at a mass rate",
                     choices=("none", "sluice")),
@@ -529,6 +578,10 @@ def _check_consistency(r: dict, case_dir: Path) -> None:
         # meaning; refuse
         raise CaseError("measurements.start_time", f"{m['start_time']:g} s is not before time.end_time = "
                                                    f"{r['time']['end_time']:g} s: nothing would be averaged")
+    if geo["type"] == "silo":
+        from .scenes.silo import check_silo_case
+
+        check_silo_case(r)
     if geo["type"] != "chute" and r["gas"]["enabled"]:
         raise CaseError("gas.enabled", "the gas phase is available for geometry.type = 'chute' only")
     if r["frame"]["rpm"] != 0 and r["gravity"]["g"] == 0:

@@ -85,6 +85,10 @@ def wall_specs(case: Case) -> list[WallSpec]:
                 p = 0.5 * (lo + hi)
                 p[ax] = pt[ax]
                 walls.append(WallSpec(f"{names[ax]}{side}", "plane", p, n))
+    elif geo.type == "silo":
+        from .scenes.silo import silo_walls
+
+        walls.extend(silo_walls(case))
     for i, w in enumerate(geo.walls):
         params = {k: float(w[k]) for k in ("k_n", "e_n", "e_t", "mu", "mu_r") if k in w}
         spec = WallSpec(w.get("name", f"wall{i}"), w["type"], np.array(w["point"], float),

@@ -491,7 +491,9 @@ class Simulation:
         cur = pos[known]
         old = ppos[order][k[known]]
         r = rad[known]
-        for w in self.walls:
+        for iw, w in enumerate(self.walls):
+            if not sys_.wall_active(iw):  # a gate that is open
+                continue
             n = w.normal / np.linalg.norm(w.normal)
             h_now = (cur - w.point) @ n
             h_old = (old - w.point) @ n
@@ -660,7 +662,8 @@ def collision_time(case: Case) -> float:
 
 def has_particles(case: Case) -> bool:
     """Whether the case can hold particles at all (an inlet or initial particles)."""
-    return case.inlet.type != "none" or bool(case.particles.initial) or bool(case.particles.initial_file)
+    return case.inlet.type != "none" or bool(case.particles.initial) or bool(case.particles.initial_file) \
+        or case.geometry.type == "silo"
 
 
 def check_time_step(case: Case, log=None) -> float:
@@ -693,6 +696,8 @@ def expected_particles(case: Case) -> int:
     (feed rate x the time to slide the chute length, accelerating at g (sin theta - mu_w cos
     theta) from the feed speed), capped by what is fed before the end time."""
     n = len(case.particles.initial)
+    if case.geometry.type == "silo":
+        n += case.silo.n_particles
     if case.particles.initial_file:
         try:
             n += len(initial_particles(case)["pos"]) - len(case.particles.initial)

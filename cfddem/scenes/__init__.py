@@ -28,7 +28,9 @@ from __future__ import annotations
 import importlib
 import math
 
-SCENES: dict[str, str] = {}
+SCENES: dict[str, str] = {
+    "silo": "cfddem.scenes.silo:SiloScene",
+}
 
 
 class Scene:

@@ -1,0 +1,223 @@
+"""Silo discharge measurements (pure functions and one accumulator; no engine imports).
+
+Axes of the silo scene: x across the silo (0..width), y up (the outlet plane at y = 0), z through
+the depth (front wall z = 0, back wall z = depth).
+
+- :func:`fit_mass_flow`: the steady mass flow rate W as the slope of a least-squares line through
+  the discharged mass m(t) between two fractions (default 20 % and 80 %) of the final discharged
+  mass; the rms residual of the fit is returned with the window.
+- :func:`bulk_density`: rho_b = (sum of the masses of the particles whose centres lie in a box) /
+  (box volume).  For a box much larger than a particle this is the bulk density without bias (a
+  sphere is counted whole or not at all, which averages out over the box faces).
+- :class:`VelocityField`: time average of the particle velocity on an x-y grid (depth-averaged):
+  per cell sum(v) / (number of particle samples), i.e. the average over the particles present.
+- :func:`channel_boundary`: for each row of the averaged field, the x on each side of the
+  centreline where the downward speed -v_y first falls below ``fraction`` x the centreline speed
+  (linear interpolation between cell centres).
+- :func:`beverloo_rate` / :func:`fit_beverloo`: the Beverloo law for a slot (planar silo)
+  W = C rho_b sqrt(g) L (b - k d)^(3/2) (Beverloo, Leniger & van de Velde, Chem. Eng. Sci. 15
+  (1961) 260; slot form e.g. Nedderman, "Statics and kinematics of granular materials", 1992,
+  §10), fitted for C and k by non-linear least squares (scipy.optimize.curve_fit).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def fit_mass_flow(t, m, lo: float = 0.2, hi: float = 0.8) -> dict:
+    """Linear fit m = W t + c over the samples with lo M <= m <= hi M, M = m[-1] (the final
+    discharged mass).  Returns rate W (kg/s; NaN when fewer than 3 samples fall in the window),
+    intercept c, the window (t_lo, t_hi, m_lo, m_hi), the rms residual (kg), the residual
+    relative to the mass range of the window, and the number of samples used."""
+    t = np.asarray(t, float)
+    m = np.asarray(m, float)
+    out = {"rate": math.nan, "intercept": math.nan, "t_lo": math.nan, "t_hi": math.nan,
+           "m_lo": lo * (m[-1] if len(m) else 0.0), "m_hi": hi * (m[-1] if len(m) else 0.0),
+           "residual_rms": math.nan, "residual_rel": math.nan, "n_points": 0}
+    if len(m) < 3 or not m[-1] > 0:
+        return out
+    M = m[-1]
+    sel = (m >= lo * M) & (m <= hi * M)
+    n = int(sel.sum())
+    out["n_points"] = n
+    if n < 3:
+        return out
+    ts, ms = t[sel], m[sel]
+    if np.ptp(ts) <= 0:
+        return out
+    A = np.stack([ts, np.ones_like(ts)], axis=1)
+    (w, c), *_ = np.linalg.lstsq(A, ms, rcond=None)
+    res = ms - (w * ts + c)
+    rms = float(np.sqrt(np.mean(res ** 2)))
+    out.update(rate=float(w), intercept=float(c), t_lo=float(ts[0]), t_hi=float(ts[-1]), residual_rms=rms,
+               residual_rel=rms / max(float(np.ptp(ms)), 1e-300))
+    return out
+
+
+def bulk_density(pos, mass, box_lo, box_hi) -> tuple[float, int]:
+    """(mass of the particles whose centres are inside [box_lo, box_hi]) / box volume, and
+    their number."""
+    pos = np.asarray(pos, float).reshape(-1, 3)
+    lo = np.asarray(box_lo, float)
+    hi = np.asarray(box_hi, float)
+    vol = float(np.prod(hi - lo))
+    if not vol > 0:
+        return math.nan, 0
+    inside = np.all((pos >= lo) & (pos < hi), axis=1)
+    return float(np.asarray(mass, float)[inside].sum()) / vol, int(inside.sum())
+
+
+def surface_height(pos, x0: float, x1: float, bin_width: float) -> float:
+    """Height of the free surface: the median over x bins of [x0, x1) of the highest particle
+    centre in each (non-empty) bin; NaN without particles."""
+    pos = np.asarray(pos, float).reshape(-1, 3)
+    if not len(pos):
+        return math.nan
+    nb = max(1, int((x1 - x0) / bin_width))
+    k = np.floor((pos[:, 0] - x0) / (x1 - x0) * nb).astype(np.int64)
+    ok = (k >= 0) & (k < nb)
+    top = np.full(nb, -np.inf)
+    np.maximum.at(top, k[ok], pos[ok, 1])
+    top = top[np.isfinite(top)]
+    return float(np.median(top)) if len(top) else math.nan
+
+
+class VelocityField:
+    """Time-averaged, depth-averaged particle velocity on an x-y grid of ``nx`` x ``ny`` cells
+    over [x0, x1) x [y0, y1): per cell the sums of v_x, v_y and the number of particle samples.
+    ``mean()`` is sum / count (NaN in cells never occupied)."""
+
+    def __init__(self, x0: float, x1: float, y0: float, y1: float, cell: float):
+        self.x0, self.y0 = float(x0), float(y0)
+        self.nx = max(1, int(round((x1 - x0) / cell)))
+        self.ny = max(1, int(round((y1 - y0) / cell)))
+        self.dx = (x1 - x0) / self.nx
+        self.dy = (y1 - y0) / self.ny
+        self.sum_vx = np.zeros((self.ny, self.nx))
+        self.sum_vy = np.zeros((self.ny, self.nx))
+        self.count = np.zeros((self.ny, self.nx))
+        self.n_samples = 0
+
+    @property
+    def x(self) -> np.ndarray:
+        return self.x0 + (np.arange(self.nx) + 0.5) * self.dx
+
+    @property
+    def y(self) -> np.ndarray:
+        return self.y0 + (np.arange(self.ny) + 0.5) * self.dy
+
+    def sample(self, pos, vel) -> None:
+        pos = np.asarray(pos, float).reshape(-1, 3)
+        vel = np.asarray(vel, float).reshape(-1, 3)
+        i = np.floor((pos[:, 0] - self.x0) / self.dx).astype(np.int64)
+        j = np.floor((pos[:, 1] - self.y0) / self.dy).astype(np.int64)
+        ok = (i >= 0) & (i < self.nx) & (j >= 0) & (j < self.ny)
+        flat = j[ok] * self.nx + i[ok]
+        size = self.nx * self.ny
+        self.count += np.bincount(flat, minlength=size).reshape(self.ny, self.nx)
+        self.sum_vx += np.bincount(flat, weights=vel[ok, 0], minlength=size).reshape(self.ny, self.nx)
+        self.sum_vy += np.bincount(flat, weights=vel[ok, 1], minlength=size).reshape(self.ny, self.nx)
+        self.n_samples += 1
+
+    def mean(self) -> tuple[np.ndarray, np.ndarray]:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return self.sum_vx / self.count, self.sum_vy / self.count
+
+    def get_state(self) -> dict:
+        return {"sum_vx": self.sum_vx.copy(), "sum_vy": self.sum_vy.copy(), "count": self.count.copy(),
+                "n_samples": np.int64(self.n_samples)}
+
+    def set_state(self, d: dict) -> None:
+        self.sum_vx[...] = d["sum_vx"]
+        self.sum_vy[...] = d["sum_vy"]
+        self.count[...] = d["count"]
+        self.n_samples = int(d["n_samples"])
+
+
+def channel_boundary(vy_mean, x, xc: float, fraction: float = 0.1) -> dict:
+    """Flow-channel boundary of an averaged field ``vy_mean`` (ny, nx) on cell centres ``x``.
+
+    Per row: the centreline speed s_c = -v_y interpolated at ``xc``; walking outwards from the
+    centre, the first x where s = -v_y < fraction s_c (linear interpolation between the two
+    cells that bracket the crossing; an empty cell counts as s = 0).  Rows where s_c <= 0 or is
+    undefined give NaN; a side where the speed never falls below the threshold gives the
+    outermost cell centre.  Returns arrays ``centre_speed``, ``x_left``, ``x_right``."""
+    vy = np.asarray(vy_mean, float)
+    x = np.asarray(x, float)
+    ny, nx = vy.shape
+    s = np.where(np.isfinite(vy), -vy, 0.0)
+    sc = np.full(ny, np.nan)
+    xl = np.full(ny, np.nan)
+    xr = np.full(ny, np.nan)
+    ic = int(np.clip(np.searchsorted(x, xc), 1, nx - 1)) if nx > 1 else 0
+    for j in range(ny):
+        if not np.isfinite(vy[j]).any():
+            continue
+        c = float(np.interp(xc, x, s[j])) if nx > 1 else float(s[j, 0])
+        if not c > 0:
+            continue
+        sc[j] = c
+        thr = fraction * c
+        # right: cells from the first centre at or right of xc
+        prev_x, prev_s = xc, c
+        xr[j] = x[-1]
+        for i in range(ic, nx):
+            if s[j, i] < thr:
+                f = (prev_s - thr) / (prev_s - s[j, i]) if prev_s != s[j, i] else 0.0
+                xr[j] = prev_x + f * (x[i] - prev_x)
+                break
+            prev_x, prev_s = x[i], s[j, i]
+        prev_x, prev_s = xc, c
+        xl[j] = x[0]
+        for i in range(ic - 1, -1, -1):
+            if s[j, i] < thr:
+                f = (prev_s - thr) / (prev_s - s[j, i]) if prev_s != s[j, i] else 0.0
+                xl[j] = prev_x + f * (x[i] - prev_x)
+                break
+            prev_x, prev_s = x[i], s[j, i]
+    return {"centre_speed": sc, "x_left": xl, "x_right": xr}
+
+
+def beverloo_rate(b, C: float, k: float, rho_b: float, L: float, d: float, g: float = 9.81):
+    """W = C rho_b sqrt(g) L (b - k d)^(3/2) for a slot of width b and length L (0 where b <= k d)."""
+    b = np.asarray(b, float)
+    return C * rho_b * math.sqrt(g) * L * np.clip(b - k * d, 0.0, None) ** 1.5
+
+
+def fit_beverloo(b, W, rho_b: float, L: float, d: float, g: float = 9.81) -> dict:
+    """Least-squares fit of C and k in W = C rho_b sqrt(g) L (b - k d)^(3/2).
+
+    Started from the exact two-parameter solution of the linearised form
+    W^(2/3) = (C rho_b sqrt(g) L)^(2/3) (b - k d) (a straight line in b), then refined by
+    ``scipy.optimize.curve_fit`` on W itself.  Returns C, k, their standard errors and the rms
+    relative residual."""
+    from scipy.optimize import curve_fit
+
+    b = np.asarray(b, float)
+    W = np.asarray(W, float)
+    ok = np.isfinite(W) & (W > 0)
+    b, W = b[ok], W[ok]
+    if len(b) < 2:
+        raise ValueError("the Beverloo fit needs at least two outlet widths with a positive flow rate")
+    A = rho_b * math.sqrt(g) * L
+    slope, icpt = np.polyfit(b, W ** (2.0 / 3.0), 1)
+    C0 = max(slope, 1e-12) ** 1.5 / A
+    k0 = -icpt / max(slope, 1e-12) / d
+    if len(b) == 2:
+        C, k, sC, sk = C0, k0, math.nan, math.nan
+    else:
+        def f(bb, C, k):
+            return beverloo_rate(bb, C, k, rho_b, L, d, g)
+
+        kmax = (b.min() / d) * (1 - 1e-9)
+        p0 = (C0, min(k0, 0.99 * kmax))
+        popt, pcov = curve_fit(f, b, W, p0=p0, bounds=([0.0, -10.0], [np.inf, kmax]), maxfev=20000)
+        C, k = float(popt[0]), float(popt[1])
+        err = np.sqrt(np.diag(pcov)) if np.all(np.isfinite(pcov)) else (math.nan, math.nan)
+        sC, sk = float(err[0]), float(err[1])
+    rel = (beverloo_rate(b, C, k, rho_b, L, d, g) - W) / W
+    return {"C": float(C), "k": float(k), "C_err": sC, "k_err": sk,
+            "rms_rel_residual": float(np.sqrt(np.mean(rel ** 2)))}

@@ -1,0 +1,416 @@
+"""The planar (quasi-2D) silo discharge scene (``geometry.type = "silo"``, case section ``[silo]``).
+
+Axes: x across the silo (side walls at x = 0 and x = width), y UP (gravity (0, -g, 0):
+``gravity.inclination_deg`` must be 0), z through the depth (front wall z = 0, back wall
+z = depth).  The slot outlet (full depth) spans x = width/2 +- b/2 at the outlet plane y = 0.
+
+Walls (all bounded rectangles, one-sided, named; each group has its own contact parameters in
+``[silo.front_back]``, ``[silo.sides]``, ``[silo.bottom]``, ``[silo.gate_wall]``, unset keys from
+``contact.particle_wall``):
+
+- ``front`` (z = 0, normal +z) and ``back`` (z = depth, normal -z), covering everything;
+- ``left`` / ``right`` side walls (normals +x / -x) from the hopper top (flat: the bottom) up to
+  the silo height;
+- flat bottom: ``bottom_left`` / ``bottom_right`` at y = 0 (normal +y) from the side walls to the
+  slot edges; hopper: ``hopper_left`` / ``hopper_right`` planes from the slot edges up to the side
+  walls, inclined at ``hopper_angle_deg`` to the HORIZONTAL (normals (sin a, cos a, 0) and
+  (-sin a, cos a, 0)), so the hopper top is at y_h = (width - b)/2 tan a;
+- ``lip_left`` / ``lip_right``: vertical walls lining the slot from y = -lip to 0 (the thickness
+  of the bottom plate).  They keep a particle that has passed the outlet plane from sliding
+  sideways under a bottom plate (a one-sided rectangle pushes a centre that is less than a radius
+  behind its face back through it);
+- ``gate``: a rectangle at y = -lip (normal +y) closing the slot; ``system.set_wall_active("gate",
+  False)`` opens it.
+
+Seams: walls that meet are extended past the seam by one particle diameter (on the side away
+from the particles), so no particle can leak through a corner; the slot edge is where the
+bottom (or hopper) plate meets the lip: a particle rolling over that edge touches both walls'
+edges at the same point (two equal edge contacts: twice the stiffness, the same friction ratio).
+
+Filling (``silo.fill = "lattice"``): ``n_particles`` on a cubic lattice of spacing
+d (1 + lattice_gap), each site displaced by up to +-lattice_jitter d/2 per axis (seeded), starting
+just above the flat bottom or the hopper top, at rest, dropped under gravity.  The gate opens at
+``gate_time`` (``gate = "time"``) or, with ``gate = "settled"``, at the first check at or after
+``gate_time`` where the kinetic energy per particle is below ``settle_energy``.
+
+At the opening: the fill height (:func:`~cfddem.measure.silo.surface_height`, median over 2 d
+wide bins of the highest centre) and the bulk density
+(:func:`~cfddem.measure.silo.bulk_density`) in the box x in [3 d, width - 3 d], full depth,
+y from 3 d above the bottom (flat) or the hopper top, to 3 d below the free surface.
+
+Discharge: particles whose centres fall below y = -removal_depth are removed and counted
+(``/series/discharged_mass``, the run counters ``mass_out``/``count_out``).  Every
+``settle_check_interval`` the discharged mass is recorded; if nothing left for ``clog_time``
+the discharge has stopped: CLOGGED if some particle centre lies in the slot's x range below
+y = 2 d (an arch over the outlet), otherwise ended (flat bottom: stagnant heaps remain; hopper:
+empty).  Either way the run stops with that message.  The steady flow rate is the slope of a
+line through the discharged mass between the ``fit_range`` fractions of the final discharged
+mass (:func:`~cfddem.measure.silo.fit_mass_flow`).  A time-averaged x-y velocity field is sampled
+during discharge and the flow-channel boundary taken from it
+(:func:`~cfddem.measure.silo.channel_boundary`).
+
+Stored in results.h5: ``/measurements/mass_flow_rate`` (kg/s), ``/measurements/bulk_density``
+(kg/m3), ``/measurements/clogged`` (0/1) and the details under ``/measurements/silo``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..errors import CaseError
+from ..measure.silo import VelocityField, bulk_density, channel_boundary, fit_mass_flow, surface_height
+from . import Scene
+
+WALL_GROUPS = {"front": "front_back", "back": "front_back", "left": "sides", "right": "sides",
+               "bottom_left": "bottom", "bottom_right": "bottom", "hopper_left": "bottom",
+               "hopper_right": "bottom", "lip_left": "bottom", "lip_right": "bottom", "gate": "gate_wall"}
+
+
+class SiloGeometry:
+    """Derived dimensions of the silo (m): width W, depth L, slot b, hopper angle a (rad), lip,
+    centre xc, hopper top y_h (0 for a flat bottom), fill lattice, side-wall height H, removal
+    depth."""
+
+    def __init__(self, silo: dict, d: float, seed: int = 12345):
+        self.W = silo["width"]
+        self.L = silo["depth"]
+        self.b = silo["outlet_width"]
+        self.angle = math.radians(silo["hopper_angle_deg"])
+        self.d = d
+        self.lip = silo["lip"] or d
+        self.xc = 0.5 * self.W
+        self.y_h = 0.5 * (self.W - self.b) * math.tan(self.angle) if self.angle > 0 else 0.0
+        self.removal_depth = silo["removal_depth"] or (self.lip + 1.5 * d)
+        self.lattice = fill_lattice(self.W, self.L, self.y_h, d, silo["n_particles"], silo["lattice_gap"],
+                                    silo["lattice_jitter"], seed)
+        top = float(self.lattice[:, 1].max()) + 0.5 * d
+        self.H = silo["height"] or (top + 2 * d)
+        self.lattice_top = top
+
+    @property
+    def hopper(self) -> bool:
+        return self.angle > 0
+
+
+def fill_lattice(W: float, L: float, y0: float, d: float, n: int, gap: float, jitter: float,
+                 seed: int) -> np.ndarray:
+    """The first ``n`` sites (layer by layer, bottom up) of a cubic lattice of spacing
+    a = d (1 + gap) filling x in [0, W], z in [0, L] with a clearance r (1 + gap) from the walls,
+    the lowest layer at y0 + r (1 + gap); each site moved by a uniform random offset in
+    [-jitter d/2, jitter d/2]^3 (seed ``seed``).  With jitter < gap no two spheres and no sphere
+    and wall overlap."""
+    r = 0.5 * d
+    a = d * (1.0 + gap)
+    clear = r * (1.0 + gap)
+    nx = int(math.floor((W - 2 * clear) / a + 1e-9)) + 1
+    nz = int(math.floor((L - 2 * clear) / a + 1e-9)) + 1
+    if W - 2 * clear < 0 or L - 2 * clear < 0:
+        raise CaseError("silo.depth", f"the silo ({W:g} x {L:g} m) is too small for one lattice site of d = {d:g} m")
+    x = 0.5 * (W - (nx - 1) * a) + a * np.arange(nx)
+    z = 0.5 * (L - (nz - 1) * a) + a * np.arange(nz)
+    per = nx * nz
+    layers = -(-n // per)
+    y = y0 + clear + a * np.arange(layers)
+    Y, Z, X = np.meshgrid(y, z, x, indexing="ij")
+    pos = np.stack([X.ravel(), Y.ravel(), Z.ravel()], axis=1)[:n]
+    rng = np.random.default_rng(seed)
+    pos = pos + rng.uniform(-0.5 * jitter * d, 0.5 * jitter * d, size=pos.shape)
+    return pos
+
+
+def check_silo_case(r: dict) -> None:
+    """Consistency of a silo case (called by :func:`cfddem.config._check_consistency`)."""
+    s = r["silo"]
+    d = max(r["particles"]["diameter"], r["particles"]["diameter_max"])
+    if r["particles"]["diameter_max"]:
+        raise CaseError("particles.diameter_max", "the silo fill lattice is monodisperse: leave it 0")
+    if r["gravity"]["inclination_deg"] != 0.0:
+        raise CaseError("gravity.inclination_deg", "the silo needs gravity along -y (inclination 0)")
+    if r["frame"]["rpm"] != 0.0:
+        raise CaseError("frame.rpm", "the silo runs in an inertial frame (0)")
+    if not s["outlet_width"] < s["width"] - 2 * d:
+        raise CaseError("silo.outlet_width", f"{s['outlet_width']:g} m leaves no bottom: must be below "
+                                             f"silo.width - 2 d = {s['width'] - 2 * d:g} m")
+    if s["depth"] < d * (1 + s["lattice_gap"]):
+        raise CaseError("silo.depth", f"{s['depth']:g} m does not fit one particle (d = {d:g} m)")
+    if not s["lattice_jitter"] < s["lattice_gap"]:
+        raise CaseError("silo.lattice_jitter", f"{s['lattice_jitter']:g} must be below silo.lattice_gap = "
+                                               f"{s['lattice_gap']:g} (otherwise lattice spheres could overlap)")
+    fr = s["fit_range"]
+    if len(fr) != 2 or not (0.0 <= fr[0] < fr[1] <= 1.0):
+        raise CaseError("silo.fit_range", f"{fr!r}: needs two fractions 0 <= lo < hi <= 1")
+    lip = s["lip"] or d
+    if s["removal_depth"] and s["removal_depth"] < lip + 0.5 * d:
+        raise CaseError("silo.removal_depth", f"{s['removal_depth']:g} m is above the gate and lips: must be at "
+                                              f"least lip + d/2 = {lip + 0.5 * d:g} m")
+    for grp in ("front_back", "sides", "bottom", "gate_wall"):
+        for k in ("e_n", "e_t", "e"):
+            v = s[grp][k]
+            if v is not None and not 0.0 < v <= 1.0:
+                raise CaseError(f"silo.{grp}.{k}", f"{v:g} must be in (0, 1]")
+        for k in ("k_n", "E"):
+            v = s[grp][k]
+            if v is not None and not v > 0:
+                raise CaseError(f"silo.{grp}.{k}", f"{v:g} must be positive")
+    if s["height"]:
+        g = SiloGeometry(s, d, r["particles"]["seed"])
+        if s["height"] < g.lattice_top:
+            raise CaseError("silo.height", f"{s['height']:g} m is below the top of the fill lattice "
+                                           f"({g.lattice_top:.4g} m): raise it or set 0 (automatic)")
+
+
+def silo_walls(case):
+    """The silo's :class:`~cfddem.scene.WallSpec` list (params: the per-group overrides only;
+    :func:`cfddem.scene.wall_specs` fills in ``contact.particle_wall``)."""
+    from ..scene import WallSpec
+
+    s = case.resolved["silo"]
+    g = SiloGeometry(s, case.particles.diameter, case.particles.seed)
+    d, W, L, b, H, xc = g.d, g.W, g.L, g.b, g.H, g.xc
+    e = d  # extension past a seam
+    ex = np.array([1.0, 0, 0])
+    ey = np.array([0, 1.0, 0])
+    ez = np.array([0, 0, 1.0])
+    ybot = -g.removal_depth - e
+    walls = []
+
+    def add(name, point, normal, u, h1, h2):
+        grp = s[WALL_GROUPS[name]]
+        params = {k: float(v) for k, v in grp.items() if v is not None}
+        walls.append(WallSpec(name, "rectangle", np.asarray(point, float), np.asarray(normal, float),
+                              np.asarray(u, float), (float(h1), float(h2)), params))
+
+    yc = 0.5 * (ybot + H + e)
+    hy = 0.5 * (H + e - ybot)
+    add("front", (xc, yc, 0.0), ez, ex, 0.5 * W + e, hy)
+    add("back", (xc, yc, L), -ez, ex, 0.5 * W + e, hy)
+    ys = g.y_h - e
+    add("left", (0.0, 0.5 * (ys + H), 0.5 * L), ex, ey, 0.5 * (H - ys), 0.5 * L + e)
+    add("right", (W, 0.5 * (ys + H), 0.5 * L), -ex, ey, 0.5 * (H - ys), 0.5 * L + e)
+    x_edge = xc - 0.5 * b  # left slot edge
+    if not g.hopper:
+        x0 = -e
+        add("bottom_left", (0.5 * (x0 + x_edge), 0.0, 0.5 * L), ey, ex, 0.5 * (x_edge - x0), 0.5 * L + e)
+        add("bottom_right", (W - 0.5 * (x0 + x_edge), 0.0, 0.5 * L), ey, ex, 0.5 * (x_edge - x0), 0.5 * L + e)
+    else:
+        a = g.angle
+        run = x_edge + e * math.cos(a)  # to the side wall plus e along the plane
+        length = run / math.cos(a)
+        t_left = np.array([-math.cos(a), math.sin(a), 0.0])  # from the slot edge up to the left wall
+        c_left = np.array([x_edge, 0.0, 0.5 * L]) + 0.5 * length * t_left
+        add("hopper_left", c_left, (math.sin(a), math.cos(a), 0.0), t_left, 0.5 * length, 0.5 * L + e)
+        t_right = np.array([math.cos(a), math.sin(a), 0.0])
+        c_right = np.array([W - x_edge, 0.0, 0.5 * L]) + 0.5 * length * t_right
+        add("hopper_right", c_right, (-math.sin(a), math.cos(a), 0.0), t_right, 0.5 * length, 0.5 * L + e)
+    add("lip_left", (x_edge, -0.5 * g.lip, 0.5 * L), ex, ey, 0.5 * g.lip, 0.5 * L + e)
+    add("lip_right", (W - x_edge, -0.5 * g.lip, 0.5 * L), -ex, ey, 0.5 * g.lip, 0.5 * L + e)
+    add("gate", (xc, -g.lip, 0.5 * L), ey, ex, 0.5 * b + e, 0.5 * L + e)
+    return walls
+
+
+class SiloScene(Scene):
+    """Fill, gate, discharge, measurements and the stop condition of a silo run (module doc)."""
+
+    def __init__(self, sim):
+        super().__init__(sim)
+        s = self.case.resolved["silo"]
+        self.s = s
+        self.g = SiloGeometry(s, self.case.particles.diameter, self.case.particles.seed)
+        self.check_dt = s["settle_check_interval"]
+        self.k_check = 1
+        self.gate_open_time = math.nan
+        self.last_out_time = math.nan
+        self.rec_t: list[float] = []
+        self.rec_m: list[float] = []
+        self.fill = {"bulk_density": math.nan, "fill_height": math.nan, "n_particles": 0,
+                     "n_in_box": 0, "box_lo": np.full(3, np.nan), "box_hi": np.full(3, np.nan),
+                     "kinetic_energy_per_particle": math.nan}
+        self.clogged = False
+        self.ended = ""
+        cell = s["field_cell"] or 2 * self.g.d
+        self.field = VelocityField(0.0, self.g.W, -self.g.lip, self.g.H, cell)
+        self.k_field = 0
+
+    # ------------------------------------------------------------------ hooks
+    def start(self) -> None:
+        d = self.g.d
+        pos = self.g.lattice
+        self.sim.system.add_particles(pos, np.zeros(3), 0.5 * d, self.case.particles.density)
+        self.sim.log.info("silo: %d particles on a lattice up to y = %.4g m (side walls to %.4g m), gate %s",
+                          len(pos), self.g.lattice_top, self.g.H,
+                          f"opens at {self.s['gate_time']:g} s" if self.s["gate"] == "time" else
+                          f"opens when settled (kinetic energy per particle < {self.s['settle_energy']:g} J) "
+                          f"from {self.s['gate_time']:g} s")
+
+    @property
+    def gate_open(self) -> bool:
+        return math.isfinite(self.gate_open_time)
+
+    def next_time(self, t: float) -> float:
+        nt = self.k_check * self.check_dt
+        if self.gate_open:
+            nt = min(nt, self._next_field_time())
+        return nt
+
+    def _next_field_time(self) -> float:
+        return self.gate_open_time + self.s["field_start"] + self.k_field * self.s["field_interval"]
+
+    def after_steps(self) -> None:
+        sim = self.sim
+        sys_ = sim.system
+        t = sys_.time
+        half = 0.5 * sim.dt
+        if sys_.n:
+            out = sys_.pos[:, 1] < -self.g.removal_depth
+            if out.any():
+                k, m = sys_.remove_particles(out)
+                sim.counters["count_out"] += k
+                sim.counters["mass_out"] += m
+                self.last_out_time = t
+        if self.gate_open and not self.ended and t >= self._next_field_time() - half:
+            if sys_.n:
+                self.field.sample(sys_.pos, sys_.vel)
+            while self._next_field_time() <= t + half:
+                self.k_field += 1
+        if t < self.k_check * self.check_dt - half:
+            return
+        while self.k_check * self.check_dt <= t + half:
+            self.k_check += 1
+        if not self.gate_open:
+            n = max(sys_.n, 1)
+            ke = sys_.kinetic_energy() / n
+            due = t >= self.s["gate_time"] - half
+            if due and (self.s["gate"] == "time" or ke < self.s["settle_energy"]):
+                self._open_gate(t, ke)
+            return
+        self.rec_t.append(t)
+        self.rec_m.append(sim.counters["mass_out"])
+        if self.ended:
+            return
+        if sys_.n == 0:
+            self.ended = f"silo empty at t = {t:.4g} s"
+            return
+        since = self.last_out_time if math.isfinite(self.last_out_time) else self.gate_open_time
+        if t - since >= self.s["clog_time"] - half:
+            pos = sys_.pos
+            above = (np.abs(pos[:, 0] - self.g.xc) < 0.5 * self.g.b) & (pos[:, 1] < 2 * self.g.d)
+            if above.any():
+                self.clogged = True
+                self.ended = (f"CLOGGED: no outflow for {t - since:.3g} s (since t = {since:.4g} s) with "
+                              f"{int(above.sum())} particle(s) arched over the outlet; {sys_.n} remain in the silo")
+                sim.log.warning("silo %s", self.ended)
+            else:
+                self.ended = (f"discharge ended: no outflow for {t - since:.3g} s (since t = {since:.4g} s) and "
+                              f"no particle over the outlet; {sys_.n} remain in stagnant zones")
+                sim.log.info("silo %s", self.ended)
+
+    def _open_gate(self, t: float, ke: float) -> None:
+        sys_ = self.sim.system
+        d = self.g.d
+        self.fill_measure(sys_.pos, sys_.mass)
+        self.fill["kinetic_energy_per_particle"] = ke
+        sys_.set_wall_active("gate", False)
+        self.gate_open_time = t
+        self.k_field = 0
+        self.rec_t.append(t)
+        self.rec_m.append(self.sim.counters["mass_out"])
+        self.sim.log.info("silo: gate opened at t = %.4g s (kinetic energy per particle %.3g J); fill height "
+                          "%.4g m, bulk density %.1f kg/m3 (%d particles in the box x %.3g..%.3g m, y %.3g..%.3g m, "
+                          "full depth)", t, ke, self.fill["fill_height"], self.fill["bulk_density"],
+                          self.fill["n_in_box"], self.fill["box_lo"][0], self.fill["box_hi"][0],
+                          self.fill["box_lo"][1], self.fill["box_hi"][1])
+        if not math.isfinite(self.fill["bulk_density"]):
+            self.sim.log.warning("silo: the fill is too low for a bulk-density box 3 d (%.3g m) from the walls "
+                                 "and the free surface", 3 * d)
+
+    def fill_measure(self, pos, mass) -> None:
+        """Fill height and bulk density of the current packing (module doc for the box)."""
+        d, g = self.g.d, self.g
+        h = surface_height(pos, 0.0, g.W, 2 * d)
+        lo = np.array([3 * d, g.y_h + 3 * d, 0.0])
+        hi = np.array([g.W - 3 * d, h - 3 * d, g.L])
+        rho, k = bulk_density(pos, mass, lo, hi) if hi[1] > lo[1] else (math.nan, 0)
+        self.fill.update(bulk_density=rho, fill_height=h, n_particles=len(pos), n_in_box=k, box_lo=lo, box_hi=hi)
+
+    def series(self) -> dict:
+        c = self.sim.counters
+        return {"discharged_mass": c["mass_out"], "discharged_count": float(c["count_out"]),
+                "gate_open": 1.0 if self.gate_open else 0.0}
+
+    def stop_reason(self) -> str | None:
+        if not self.ended:
+            return None
+        fit = self.flow_fit()
+        rate = f"; steady mass flow rate {fit['rate']:.4g} kg/s" if math.isfinite(fit["rate"]) else ""
+        return self.ended + rate
+
+    def flow_fit(self) -> dict:
+        lo, hi = self.s["fit_range"]
+        if not self.gate_open or len(self.rec_t) < 3:
+            return fit_mass_flow([], [], lo, hi)
+        t = np.array(self.rec_t)
+        m = np.array(self.rec_m)
+        if self.clogged or self.ended:  # the record after the last outflow is not part of the discharge
+            keep = t <= (self.last_out_time if math.isfinite(self.last_out_time) else t[0]) + 1e-12
+            keep[: 1] = True
+            t, m = t[keep], m[keep]
+        return fit_mass_flow(t, m, lo, hi)
+
+    def measurements(self):
+        fit = self.flow_fit()
+        vx, vy = self.field.mean()
+        ch = channel_boundary(vy, self.field.x, self.g.xc, self.s["channel_fraction"])
+        g = self.g
+        silo = {
+            "discharge_time": np.array(self.rec_t, float),
+            "discharge_mass": np.array(self.rec_m, float),
+            "fit_window": np.array([fit["t_lo"], fit["t_hi"], fit["m_lo"], fit["m_hi"]]),
+            "fit_residual_rms": fit["residual_rms"],
+            "fit_residual_rel": fit["residual_rel"],
+            "fit_points": fit["n_points"],
+            "gate_open_time": self.gate_open_time,
+            "fill_height": self.fill["fill_height"],
+            "fill_particles": self.fill["n_particles"],
+            "fill_kinetic_energy_per_particle": self.fill["kinetic_energy_per_particle"],
+            "bulk_density_box": np.concatenate([self.fill["box_lo"], self.fill["box_hi"]]),
+            "bulk_density_particles": self.fill["n_in_box"],
+            "field": {"x": self.field.x, "y": self.field.y, "vx": vx, "vy": vy, "count": self.field.count,
+                      "n_samples": self.field.n_samples},
+            "channel": {"y": self.field.y, "x_left": ch["x_left"], "x_right": ch["x_right"],
+                        "centre_speed": ch["centre_speed"], "fraction": self.s["channel_fraction"]},
+            "@attrs": {"axes": "x across, y up (outlet plane y = 0), z depth", "outlet_width": g.b, "width": g.W,
+                       "depth": g.L, "hopper_angle_deg_from_horizontal": self.s["hopper_angle_deg"],
+                       "fit": f"discharged mass against time between {self.s['fit_range'][0]:g} and "
+                              f"{self.s['fit_range'][1]:g} of the final discharged mass (least squares)",
+                       "bulk_density": "mass of the particles with centres in bulk_density_box (x0,y0,z0,x1,y1,z1) "
+                                       "over its volume, at the gate opening",
+                       "stop": self.ended},
+        }
+        arrays = {"mass_flow_rate": fit["rate"], "bulk_density": self.fill["bulk_density"],
+                  "clogged": np.int64(1 if self.clogged else 0), "silo": silo,
+                  "@attrs:mass_flow_rate": {"unit": "kg/s"}, "@attrs:bulk_density": {"unit": "kg/m3"},
+                  "@attrs:clogged": {"unit": "0/1"}}
+        return None, arrays, {}
+
+    def get_state(self) -> dict:
+        return {"k_check": np.int64(self.k_check), "gate_open_time": self.gate_open_time,
+                "last_out_time": self.last_out_time, "rec_t": np.array(self.rec_t, float),
+                "rec_m": np.array(self.rec_m, float), "clogged": np.int64(self.clogged), "ended": self.ended,
+                "k_field": np.int64(self.k_field), "field": self.field.get_state(),
+                "fill": {k: (np.asarray(v) if not isinstance(v, (int, float)) else v) for k, v in self.fill.items()}}
+
+    def set_state(self, d: dict) -> None:
+        self.k_check = int(d["k_check"])
+        self.gate_open_time = float(d["gate_open_time"])
+        self.last_out_time = float(d["last_out_time"])
+        self.rec_t = [float(x) for x in np.asarray(d["rec_t"]).ravel()]
+        self.rec_m = [float(x) for x in np.asarray(d["rec_m"]).ravel()]
+        self.clogged = bool(int(d["clogged"]))
+        e = d["ended"]
+        self.ended = e.decode() if isinstance(e, bytes) else str(e)
+        self.k_field = int(d["k_field"])
+        self.field.set_state(d["field"])
+        for k, v in d["fill"].items():
+            self.fill[k] = np.asarray(v, float) if k.startswith("box") else float(v)
