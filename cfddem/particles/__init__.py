@@ -2,11 +2,12 @@
 
 Public API::
 
-    from cfddem.particles import ParticleSystem, StepStatus, LinearContact, PlaneWall, RectangleWall
+    from cfddem.particles import (ParticleSystem, StepStatus, LinearContact, HertzMindlinContact,
+                                  PlaneWall, RectangleWall, CylinderWall)
 """
 
-from cfddem.particles.contact import LinearContact
+from cfddem.particles.contact import HertzMindlinContact, LinearContact
 from cfddem.particles.system import ParticleSystem, StepStatus
-from cfddem.particles.walls import PlaneWall, RectangleWall, Wall
+from cfddem.particles.walls import CylinderWall, PlaneWall, RectangleWall, Wall
 
-__all__ = ["LinearContact", "ParticleSystem", "StepStatus", "Wall", "PlaneWall", "RectangleWall"]
+__all__ = ["LinearContact", "HertzMindlinContact", "CylinderWall", "ParticleSystem", "StepStatus", "Wall", "PlaneWall", "RectangleWall"]

@@ -501,10 +501,21 @@ def worst_overlap(npairs, pi, pj, pos, radius, periodic_len, n, wgeom, nw):
     return who, best
 
 
+@kernel(inline="always")
+def _spring_energy(model, kn, kt, reff, dn, hx, hy, hz):
+    """Elastic energy of one contact: linear 1/2 k_n d_n^2 + 1/2 k_t |d_t|^2; Hertz-Mindlin
+    (8/15) E* sqrt(R*) d_n^(5/2) + 1/2 S_t |d_t|^2 with S_t = 8 G* sqrt(R* d_n) (kn = E*, kt = G*)."""
+    h2 = hx * hx + hy * hy + hz * hz
+    if model == 1.0:
+        q = math.sqrt(reff * dn)
+        return 8.0 / 15.0 * kn * q * dn * dn + 0.5 * 8.0 * kt * q * h2
+    return 0.5 * kn * dn * dn + 0.5 * kt * h2
+
+
 @kernel
-def elastic_energy(npairs, pi, pj, pos, radius, periodic_len, hist, kn_pp, kt_pp, n, wgeom, nw,
-                   wkn, wkt, whist):
-    """Energy stored in the contact springs: sum 1/2 k_n d_n^2 + 1/2 k_t |d_t|^2."""
+def elastic_energy(npairs, pi, pj, pos, radius, periodic_len, hist, pp, n, wgeom, nw, wpar, whist):
+    """Energy stored in the contact springs (pairs with the row ``pp``, walls with ``wpar``),
+    see :func:`_spring_energy`."""
     e = 0.0
     for k in range(npairs):
         a = pi[k]
@@ -514,14 +525,14 @@ def elastic_energy(npairs, pi, pj, pos, radius, periodic_len, hist, kn_pp, kt_pp
         dz = _min_image(pos[b, 2] - pos[a, 2], periodic_len[2])
         dn = radius[a] + radius[b] - math.sqrt(dx * dx + dy * dy + dz * dz)
         if dn > 0.0:
-            e += 0.5 * kn_pp * dn * dn
-            e += 0.5 * kt_pp * (hist[k, 0] ** 2 + hist[k, 1] ** 2 + hist[k, 2] ** 2)
+            e += _spring_energy(pp[P_MODEL], pp[P_KN], pp[P_KT], radius[a] * radius[b] / (radius[a] + radius[b]),
+                                dn, hist[k, 0], hist[k, 1], hist[k, 2])
     for i in range(n):
         for w in range(nw):
             ov, nx, ny, nz, qx, qy, qz = wall_contact(wgeom, w, pos[i, 0], pos[i, 1], pos[i, 2], radius[i])
             if ov > 0.0:
-                e += 0.5 * wkn[w] * ov * ov
-                e += 0.5 * wkt[w] * (whist[i, w, 0] ** 2 + whist[i, w, 1] ** 2 + whist[i, w, 2] ** 2)
+                e += _spring_energy(wpar[w, P_MODEL], wpar[w, P_KN], wpar[w, P_KT], radius[i], ov,
+                                    whist[i, w, 0], whist[i, w, 1], whist[i, w, 2])
     return e
 
 

@@ -23,7 +23,7 @@ import numpy as np
 from cfddem.errors import CaseError
 from cfddem.particles import integrate as it
 from cfddem.particles import neighbours as nb
-from cfddem.particles.contact import P_KN, P_KT, LinearContact
+from cfddem.particles.contact import LinearContact
 from cfddem.particles.walls import KIND_OFF, Wall, pack_walls
 
 
@@ -405,9 +405,14 @@ class ParticleSystem:
         if self.n == 0:
             return float("inf")
         mmin = float(self.mass.min())
-        tc = self.pp.collision_time(0.5 * mmin)
+        rmin = float(self.radius.min())
+        # impact speed for the Hertz time (ignored by the linear law): the fastest particle
+        sp = np.sqrt(np.sum(self.vel**2, axis=1))
+        sp = sp[np.isfinite(sp)]
+        v = max(float(sp.max()) if sp.size else 0.0, 1e-3)
+        tc = self.pp.collision_time(0.5 * mmin, 0.5 * rmin, v)
         for w in self.walls:
-            tc = min(tc, w.contact.collision_time(mmin))
+            tc = min(tc, w.contact.collision_time(mmin, rmin, v))
         return tc
 
     def _dt_hint(self) -> str:
@@ -434,17 +439,16 @@ class ParticleSystem:
         return np.sum(self.mass[:, None] * self.vel, axis=0)
 
     def elastic_energy(self) -> float:
-        """Energy stored in contact springs (pair and wall), 1/2 k_n d_n^2 + 1/2 k_t |d_t|^2."""
+        """Energy stored in contact springs (pair and wall): linear 1/2 k_n d_n^2 + 1/2 k_t |d_t|^2,
+        Hertz-Mindlin (8/15) E* sqrt(R*) d_n^(5/2) + 1/2 S_t |d_t|^2."""
         if self.n == 0:
             return 0.0
         if self._need_rebuild:
             self._rebuild()
         cur = self._cur
         return float(it.elastic_energy(self._npairs, cur["pi"], cur["pj"], self._pos, self._radius,
-                                       self._plen, cur["hist"], self._pp_params[0, P_KN],
-                                       self._pp_params[0, P_KT], self.n, self._wgeom, self.nw,
-                                       np.ascontiguousarray(self._wpar[:, P_KN]),
-                                       np.ascontiguousarray(self._wpar[:, P_KT]), self._whist))
+                                       self._plen, cur["hist"], self._pp_params[0], self.n, self._wgeom,
+                                       self.nw, self._wpar, self._whist))
 
     def max_overlap_ratio(self) -> float:
         """Max over contacts (pairs and walls) of overlap / min radius at the last evaluation."""

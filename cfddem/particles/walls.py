@@ -1,4 +1,4 @@
-"""Walls: one-sided infinite planes and bounded planar rectangles.
+"""Walls: one-sided infinite planes, bounded planar rectangles and finite cylinders (rings).
 
 A wall is described to kernels by one float64 row of ``WALL_NGEOM`` numbers (geometry) and one
 contact-parameter row (:mod:`cfddem.particles.contact`).  Geometry row layout::
@@ -7,18 +7,29 @@ contact-parameter row (:mod:`cfddem.particles.contact`).  Geometry row layout::
 
 ``kind`` 0 = infinite plane through p with unit normal n; 1 = rectangle centred at p spanned by
 unit in-plane axes a1, a2 with half-extents h1, h2; a negative kind (``KIND_OFF``) is a wall
-switched off (no contact; :meth:`ParticleSystem.set_wall_active`, e.g. a silo gate).  v is the
+switched off (no contact; :meth:`ParticleSystem.set_wall_active`, e.g. a silo gate); 2 = the
+surface of a finite cylinder: axis n through p, radius h1, axial extent -h2 <= s <= h2 about p,
+a1[0] = -1 for the inside surface (particles inside the ring), +1 for the outside.  v is the
 wall velocity: it enters the relative contact velocity, and :class:`ParticleSystem` translates a
 wall with non-zero v by v dt every step (its position p(t) = p(t0) + v (t - t0), and the
 reference point moves with it); ref the point about which the torque exerted on the wall is
-accumulated.  New kinds (cylinders, hopper cones) add a branch in
-:func:`wall_contact` that returns the same (overlap, outward normal, contact point).
+accumulated.  New kinds (e.g. hopper cones) add a branch in :func:`wall_contact_s` that
+returns the same (overlap, outward normal, contact point).
 
 One-sided: particles live on the +n side.  For a plane the contact exists while the centre
 height h = (x - p).n satisfies -R < h < R (overlap R - h).  For a rectangle the nearest point q
 of the rectangle to the centre is used: inside the face (|u1| <= h1, |u2| <= h2) this is the
 plane contact; outside, q lies on an edge or corner, the normal is (x - q)/|x - q| and the
 overlap R - |x - q|, for centres on the +n side only (h >= 0).
+
+Cylinder (inside): with s = (x - p).n the axial coordinate and rho = |x - p - s n| the distance
+from the axis, the contact exists for centres inside the ring (rho < R_c).  Within the ends
+(|s| <= h2) the normal points radially inwards, n_c = -(x - p - s n)/rho, the overlap is
+r + rho - R_c and the contact point q = p + s n + R_c (x - p - s n)/rho.  Beyond an end the
+sphere can only touch the rim circle: q = p + sign(s) h2 n + R_c (x - p - s n)/rho, normal
+(x - q)/|x - q|, overlap r - |x - q| (continuous with the face at |s| = h2).  Centres outside the
+ring (rho > R_c) or exactly on the axis (no defined normal; only possible with r > R_c) get no
+contact.  The outside surface mirrors this (rho > R_c, normal radially outwards).
 """
 
 from __future__ import annotations
@@ -35,6 +46,7 @@ from cfddem.particles.contact import LinearContact
 WALL_NGEOM = 20
 KIND_PLANE = 0
 KIND_RECT = 1
+KIND_CYLINDER = 2
 KIND_OFF = -1.0
 
 
@@ -50,7 +62,7 @@ def _unit(key, v):
 class Wall:
     """Base wall: contact parameters, velocity, reference point for the torque on the wall."""
 
-    contact: LinearContact
+    contact: LinearContact  # or HertzMindlinContact
     velocity: tuple = (0.0, 0.0, 0.0)
     ref_point: tuple | None = None
     name: str = ""
@@ -108,6 +120,36 @@ class RectangleWall(Wall):
         return g
 
 
+@dataclass
+class CylinderWall(Wall):
+    """Surface of a finite cylinder (a ring): axis ``axis`` through ``point``, radius ``radius``,
+    axial extent +-``half_height`` about ``point``.  ``inside=True``: the inner surface, particles
+    live inside the ring (a shear cell, a silo barrel); ``inside=False``: the outer surface.
+    Geometry kind 2 (module docstring)."""
+
+    point: tuple = (0.0, 0.0, 0.0)
+    axis: tuple = (0.0, 0.0, 1.0)
+    radius: float = 1.0
+    half_height: float = 1.0
+    inside: bool = True
+
+    def geometry(self) -> np.ndarray:
+        a = _unit("wall.axis", self.axis)
+        if not (self.radius > 0 and math.isfinite(self.radius)):
+            raise CaseError("wall.radius", f"cylinder radius must be positive, got {self.radius}")
+        if not (self.half_height > 0 and math.isfinite(self.half_height)):
+            raise CaseError("wall.half_height", f"cylinder half-height must be positive, got {self.half_height}")
+        g = np.zeros(WALL_NGEOM)
+        g[0] = KIND_CYLINDER
+        g[1:4] = np.asarray(self.point, float)
+        g[4:7] = a
+        g[7] = -1.0 if self.inside else 1.0
+        g[13] = self.radius
+        g[14] = self.half_height
+        g[16:19] = np.asarray(self.velocity, float)
+        return g
+
+
 def pack_walls(walls: list[Wall]):
     """(geometry rows (nw, WALL_NGEOM), reference points (nw, 3), contact rows (nw, NPARAM))."""
     nw = len(walls)
@@ -141,6 +183,33 @@ def wall_contact_s(kind, g1, g2, g3, g4, g5, g6, g7, g8, g9, g10, g11, g12, g13,
         if h <= -r or h >= r:
             return -1.0, nx, ny, nz, 0.0, 0.0, 0.0
         return r - h, nx, ny, nz, x - h * nx, y - h * ny, z - h * nz
+    if kind == 2.0:
+        # cylinder: n = axis, h = axial coordinate, g7 = -1 inside / +1 outside, g13 = R_c, g14 = h2
+        ex = px - h * nx
+        ey = py - h * ny
+        ez = pz - h * nz
+        rho = math.sqrt(ex * ex + ey * ey + ez * ez)
+        sg = g7
+        dist = sg * (rho - g13)  # distance from the surface, >= 0 on the particles' side
+        if rho == 0.0 or dist < 0.0 or dist >= r:
+            return -1.0, nx, ny, nz, 0.0, 0.0, 0.0
+        ux = ex / rho
+        uy = ey / rho
+        uz = ez / rho
+        if h >= -g14 and h <= g14:
+            return (r - dist, sg * ux, sg * uy, sg * uz, g1 + h * nx + g13 * ux, g2 + h * ny + g13 * uy,
+                    g3 + h * nz + g13 * uz)
+        se = g14 if h > 0.0 else -g14
+        qx = g1 + se * nx + g13 * ux
+        qy = g2 + se * ny + g13 * uy
+        qz = g3 + se * nz + g13 * uz
+        dx = x - qx
+        dy = y - qy
+        dz = z - qz
+        d = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if d >= r or d == 0.0:
+            return -1.0, nx, ny, nz, 0.0, 0.0, 0.0
+        return r - d, dx / d, dy / d, dz / d, qx, qy, qz
     # rectangle
     if h >= r or h <= -r:
         return -1.0, nx, ny, nz, 0.0, 0.0, 0.0
