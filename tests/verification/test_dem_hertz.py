@@ -1,0 +1,73 @@
+"""A sphere on an incline with the Hertz-Mindlin law and rolling friction: rest, rolling and
+sliding regimes (physics.md §1.2, §1.3; same structure as test_dem_incline.py)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from cfddem.particles import HertzMindlinContact, ParticleSystem, PlaneWall
+
+R = 1.5e-3
+RHO = 2550.0
+M = RHO * 4.0 / 3.0 * math.pi * R**3
+G = 9.81
+MU, MU_R = 0.3, 0.05
+
+
+def _incline(theta, t_end=0.15):
+    """Floor y = 0, gravity tilted by theta towards +x; HM with E = 1e7 Pa (static normal
+    stiffness S_n ~ 600 N/m).  Returns (times, x velocity, spin z, position x) every 1 ms."""
+    c = HertzMindlinContact(E=1e7, nu=0.3, e=0.5, mu=MU, mu_r=MU_R)
+    g = (G * math.sin(theta), -G * math.cos(theta), 0.0)
+    s = ParticleSystem(pp=c, walls=[PlaneWall(contact=c, point=(0, 0, 0), normal=(0, 1, 0))],
+                       dt=1e-5, gravity=g)
+    d0 = (3 * M * G * math.cos(theta) / (4 * c.E_star * math.sqrt(R))) ** (2 / 3)  # static Hertz overlap
+    s.add_particles([[0.0, R - d0, 0.0]], 0.0, R, RHO)
+    ts, vs, ws, xs = [], [], [], []
+    for _ in range(int(round(t_end / 1e-3))):
+        st = s.step(100)
+        assert st.ok, st.message
+        ts.append(s.time)
+        vs.append(s.vel[0, 0])
+        ws.append(s.omega[0, 2])
+        xs.append(s.pos[0, 0])
+    return np.array(ts), np.array(vs), np.array(ws), np.array(xs)
+
+
+def _accel(t, v, t0=0.03):
+    sel = t >= t0
+    return np.polyfit(t[sel], v[sel], 1)[0]
+
+
+def test_hm_at_rest_below_rolling_friction():
+    theta = math.atan(0.6 * MU_R)
+    t, v, w, x = _incline(theta)
+    print(f"HM rest: max |v| after 0.03 s = {np.max(np.abs(v[t > 0.03])):.3g} m/s")
+    assert np.max(np.abs(v[t > 0.03])) < 1e-6
+    assert np.max(np.abs(w[t > 0.03])) < 1e-12
+    assert abs(x[-1] - x[len(x) // 5]) < 1e-9
+
+
+def test_hm_rolling_below_sliding_threshold():
+    tan_theta = 0.4
+    assert tan_theta < (7 * MU - 5 * MU_R) / 2
+    theta = math.atan(tan_theta)
+    t, v, w, x = _incline(theta)
+    a = _accel(t, v)
+    a_th = 5.0 / 7.0 * G * (math.sin(theta) - MU_R * math.cos(theta))
+    print(f"HM rolling tan={tan_theta}: a/a_theory = {a / a_th:.5f}")
+    assert a == pytest.approx(a_th, rel=1e-2)
+    assert np.allclose(v[t > 0.03], -R * w[t > 0.03], rtol=2e-3)  # no slip
+
+
+def test_hm_sliding_above_threshold():
+    tan_theta = 1.2
+    assert tan_theta > (7 * MU - 5 * MU_R) / 2
+    theta = math.atan(tan_theta)
+    t, v, w, x = _incline(theta)
+    a = _accel(t, v)
+    a_th = G * (math.sin(theta) - MU * math.cos(theta))
+    print(f"HM sliding tan={tan_theta}: a/a_theory = {a / a_th:.5f}")
+    assert a == pytest.approx(a_th, rel=1e-2)
+    assert np.all(v[t > 0.03] > -R * w[t > 0.03] * 1.01)  # slipping
