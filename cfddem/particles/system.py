@@ -21,6 +21,7 @@ import numba
 import numpy as np
 
 from cfddem.errors import CaseError
+from cfddem.particles import clumps as cl
 from cfddem.particles import integrate as it
 from cfddem.particles import neighbours as nb
 from cfddem.particles.contact import LinearContact
@@ -42,7 +43,7 @@ class StepStatus:
 
 
 _PARTICLE_ARRAYS = ("pos", "vel", "omega", "force", "torque", "radius", "mass", "inertia", "ids",
-                    "ext_force", "ext_torque", "prev", "ref")
+                    "ext_force", "ext_torque", "prev", "ref", "body", "boff")
 _WALL_ARRAYS = ("whist", "won", "wfn", "wfw", "wtw")
 
 
@@ -114,6 +115,8 @@ class ParticleSystem:
         # wall motion: kind saved while a wall is switched off; walls with v != 0 are translated
         self._wkind = self._wgeom[:, 0].copy()
         self._moving = np.flatnonzero(np.any(self._wgeom[: self.nw, 16:19] != 0.0, axis=1))
+        # rigid clumps (cfddem.particles.clumps): None until add_clumps is called
+        self.clumps = None
 
     # ------------------------------------------------------------------ storage
     def _alloc_particles(self, cap):
@@ -121,9 +124,10 @@ class ParticleSystem:
         nw = max(self.nw, 1)
         shapes = dict(pos=(cap, 3), vel=(cap, 3), omega=(cap, 3), force=(cap, 3), torque=(cap, 3),
                       radius=(cap,), mass=(cap,), inertia=(cap,), ids=(cap,), ext_force=(cap, 3),
-                      ext_torque=(cap, 3), prev=(cap,), ref=(cap, 3), whist=(cap, nw, 3),
+                      ext_torque=(cap, 3), prev=(cap,), ref=(cap, 3), body=(cap,), boff=(cap, 3),
+                      whist=(cap, nw, 3),
                       won=(cap, nw), wfn=(cap, nw), wfw=(cap, nw, 3), wtw=(cap, nw, 3))
-        dtypes = dict(ids=np.int64, prev=np.int64, won=np.uint8)
+        dtypes = dict(ids=np.int64, prev=np.int64, body=np.int64, won=np.uint8)
         for k, shp in shapes.items():
             a = np.zeros(shp, dtype=dtypes.get(k, np.float64))
             if k in ("mass", "inertia", "radius"):
@@ -204,6 +208,8 @@ class ParticleSystem:
             getattr(self, "_" + k)[s] = 0.0
         self._won[s] = 0
         self._prev[s] = -1
+        self._body[s] = -1
+        self._boff[s] = 0.0
         self.n += m
         self._need_rebuild = True
         self._forces_stale = True
@@ -214,6 +220,8 @@ class ParticleSystem:
         mask = np.asarray(mask, bool)
         if mask.shape != (self.n,):
             raise CaseError("mask", f"needs shape ({self.n},), got {mask.shape}")
+        if self._has_clumps():
+            mask = self._clump_remove(mask)
         cnt = int(mask.sum())
         if cnt == 0:
             return 0, 0.0
@@ -224,6 +232,8 @@ class ParticleSystem:
             a = getattr(self, "_" + name)
             a[:k] = a[keep]
         self.n = k
+        if self._has_clumps():
+            self.clumps.rebuild_csr(self._body[:k], self._ids[:k])
         self._need_rebuild = True
         self._forces_stale = True
         return cnt, removed_mass
@@ -287,6 +297,8 @@ class ParticleSystem:
             cur.update(self._alloc_pairs(int(1.3 * got) + 64, 0))
             cur.update(first_start=fs, second_start=ss, counts=cn)
         npairs = int(need)
+        if self._has_clumps():  # pairs of two members of one clump never touch
+            npairs = int(cl.drop_intra_pairs(n, cur["first_start"], cur["pi"], cur["pj"], self._body))
         nb.second_csr(cur["pj"], npairs, n, cur["second_start"], cur["second_list"])
         old = self._old
         (nb.remap_history_s if ser else nb.remap_history)(cur["pi"], cur["pj"], npairs, cur["hist"], old_index, old["pi"], old["pj"],
@@ -297,6 +309,8 @@ class ParticleSystem:
         self._skin_built = skin
         self._prev[:n] = np.arange(n)
         self._ref[:n] = self._pos[:n]
+        if self._has_clumps():
+            self.clumps.rebuild_csr(self._body[:n], self._ids[:n])
         self._need_rebuild = False
         self.n_rebuilds += 1
 
@@ -332,6 +346,8 @@ class ParticleSystem:
         n = self.n
         self._has_ext = bool(np.any(self._ext_force[:n]) or np.any(self._ext_torque[:n]))
         bad = self._forces(kick=False, dt_hist=0.0)
+        if self._has_clumps():
+            bad += self._clump_close(False)
         self._forces_stale = False
         if bad:
             return self._nan_status()
@@ -358,6 +374,7 @@ class ParticleSystem:
         dt = self.dt
         n = self.n
         self._has_ext = bool(np.any(self._ext_force[:n]) or np.any(self._ext_torque[:n]))
+        clumped = self._has_clumps()
         for s in range(n_steps):
             if self._pending_m2 >= 0.0:
                 # the opening kick + drift of this step were fused into the previous gather
@@ -368,6 +385,8 @@ class ParticleSystem:
                 m2 = kd(self.n, self._pos, self._vel, self._omega, self._force, self._torque,
                         self._mass, self._inertia, self._ext_force, self._ext_torque, self._has_ext, dt,
                         self._rotating, self._Rv, self._Rw, self._plen, self._plo, self._ref)
+            if clumped:  # bodies: opening kick, rotation, drift; members follow
+                m2 = max(m2, self._clump_open())
             if len(self._moving):
                 # walls move with the particles' drift: geometry at t + dt for the new forces
                 self._translate_moving_walls(dt)
@@ -378,7 +397,9 @@ class ParticleSystem:
                     return self._fail("overflow_unrecoverable", -1, float("nan"),
                                       f"step {self.step_count + 1}: neighbour list could not grow ({exc})",
                                       s)
-            bad = self._forces(kick=True, dt_hist=dt, drift_next=s < n_steps - 1)
+            bad = self._forces(kick=True, dt_hist=dt, drift_next=s < n_steps - 1 and not clumped)
+            if clumped:
+                bad += self._clump_close(True)
             self.time += dt
             self.step_count += 1
             if bad:
@@ -431,11 +452,21 @@ class ParticleSystem:
 
     # ------------------------------------------------------------------ diagnostics
     def kinetic_energy(self) -> float:
-        """sum 1/2 m |v|^2 + 1/2 I |w|^2 in this frame."""
+        """sum 1/2 m |v|^2 + 1/2 I |w|^2 in this frame (clumps: 1/2 M |v|^2 + 1/2 L.w per body)."""
+        if self._has_clumps():
+            free = self._body[: self.n] < 0
+            return float(0.5 * np.sum(self.mass[free] * np.sum(self.vel[free]**2, axis=1))
+                         + 0.5 * np.sum(self.inertia[free] * np.sum(self.omega[free]**2, axis=1))
+                         + self.clumps.kinetic_energy())
         return float(0.5 * np.sum(self.mass * np.sum(self.vel**2, axis=1))
                      + 0.5 * np.sum(self.inertia * np.sum(self.omega**2, axis=1)))
 
     def momentum(self) -> np.ndarray:
+        if self._has_clumps():
+            free = self._body[: self.n] < 0
+            c = self.clumps
+            return (np.sum(self.mass[free, None] * self.vel[free], axis=0)
+                    + np.sum(c.mass[:, None] * c.vel, axis=0))
         return np.sum(self.mass[:, None] * self.vel, axis=0)
 
     def elastic_energy(self) -> float:
@@ -528,6 +559,96 @@ class ParticleSystem:
         b = self._ids[cur["pj"][: self._npairs]]
         return np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1)
 
+    # ------------------------------------------------------------------ rigid clumps
+    def _has_clumps(self) -> bool:
+        return self.clumps is not None and self.clumps.nb > 0
+
+    def add_clumps(self, shape, com, quat=None, vel=None, omega=None) -> np.ndarray:
+        """Add rigid clumps of ``shape`` (:class:`cfddem.particles.clumps.ClumpShape`) with
+        centres of mass ``com`` (m, 3), orientations ``quat`` (m, 4) (body principal frame ->
+        lab; None: the orientation the shape was given in), velocities ``vel`` and spins
+        ``omega`` (lab frame).  Their member spheres become particles (``body`` >= 0).  Returns
+        the clumps' body ids (stable; :meth:`body_index` gives their current index)."""
+        com = np.atleast_2d(np.asarray(com, float))
+        m = len(com)
+        if com.shape != (m, 3):
+            raise CaseError("com", f"needs shape (m, 3), got {com.shape}")
+        if m == 0:
+            return np.zeros(0, np.int64)
+        q = (np.tile(shape.orientation_identity(), (m, 1)) if quat is None
+             else np.array(np.broadcast_to(np.asarray(quat, float), (m, 4))))
+        q /= np.linalg.norm(q, axis=1)[:, None]
+        v = np.zeros((m, 3)) if vel is None else np.broadcast_to(np.asarray(vel, float), (m, 3))
+        w = np.zeros((m, 3)) if omega is None else np.broadcast_to(np.asarray(omega, float), (m, 3))
+        if not (np.all(np.isfinite(com)) and np.all(np.isfinite(v)) and np.all(np.isfinite(w))):
+            raise CaseError("com", "non-finite clump position, velocity or spin")
+        if self.clumps is None:
+            self.clumps = cl.ClumpSet()
+        k = len(shape.radii)
+        R = np.array([cl.matrix_from_quat(qq) for qq in q])  # (m, 3, 3)
+        L = np.einsum("bij,bj->bi", R, np.einsum("j,bj->bj", shape.inertia,
+                                                     np.einsum("bji,bj->bi", R, w)))
+        b0 = self.clumps.nb
+        bids = self.clumps.add(m, shape.mass, shape.inertia, com, v, L, q)
+        s_lab = np.einsum("bij,kj->bki", R, shape.offsets)  # (m, k, 3)
+        pos = (com[:, None, :] + s_lab).reshape(-1, 3)
+        mvel = (v[:, None, :] + np.cross(w[:, None, :], s_lab)).reshape(-1, 3)
+        rad = np.tile(shape.radii, m)
+        first = self.n
+        self.add_particles(pos, mvel, rad, 1.0, omega=np.repeat(w, k, axis=0))
+        sl = slice(first, self.n)
+        self._mass[sl] = np.tile(shape.member_mass, m)
+        self._inertia[sl] = 0.4 * self._mass[sl] * rad**2
+        self._body[sl] = np.repeat(np.arange(b0, b0 + m), k)
+        self._boff[sl] = np.tile(shape.offsets, (m, 1))
+        self.clumps.rebuild_csr(self._body[: self.n], self._ids[: self.n])
+        return bids
+
+    def body_index(self, bid) -> int:
+        """Current index of the clump with body id ``bid``."""
+        idx = np.flatnonzero(self.clumps.bid == int(bid))
+        if len(idx) == 0:
+            raise KeyError(f"no clump with body id {bid}")
+        return int(idx[0])
+
+    @property
+    def body(self) -> np.ndarray:
+        """(n,) clump index of each particle (-1: a free sphere)."""
+        return self._body[: self.n]
+
+    def _clump_open(self) -> float:
+        c = self.clumps
+        f = cl.clump_open_s if self._serial(c.nb) else cl.clump_open
+        return f(c.nb, c.start, c.members, c._com, c._vel, c._L, c._quat, c._mass, c._inert, c._force,
+                 c._torque, c._ext_force, c._ext_torque, c._vfix, c._vset, self.dt, self._rotating,
+                 self._Rv, self._Rw, self._pos, self._vel, self._omega, self._boff, self._plen,
+                 self._plo, self._ref)
+
+    def _clump_close(self, kick: bool) -> int:
+        c = self.clumps
+        g, om, ap = self.gravity, self.frame_omega, self.axis_point
+        f = cl.clump_close_s if self._serial(c.nb) else cl.clump_close
+        return int(f(c.nb, c.start, c.members, c._com, c._vel, c._L, c._quat, c._mass, c._inert, c._force,
+                     c._torque, c._ext_force, c._ext_torque, c._vfix, c._vset, c._cforce, self.dt, kick,
+                     self._rotating, self._Rv, self._Rw, self._pos, self._vel, self._omega, self._boff,
+                     self._force, self._torque, self._mass, self._ext_force, self._ext_torque,
+                     self._has_ext, g[0], g[1], g[2], om[0], om[1], om[2], ap[0], ap[1], ap[2],
+                     self._plen, self._plo))
+
+    def _clump_remove(self, mask) -> np.ndarray:
+        """Removing one member removes its whole clump: returns the widened mask and drops the
+        bodies (remaps ``body``)."""
+        n = self.n
+        body = self._body[:n]
+        gone = np.zeros(self.clumps.nb, bool)
+        gone[body[mask & (body >= 0)]] = True
+        mask = mask | ((body >= 0) & gone[np.maximum(body, 0)])
+        if gone.any():
+            newidx = self.clumps.keep(~gone)
+            keep = body >= 0
+            body[keep] = newidx[body[keep]]
+        return mask
+
     # ------------------------------------------------------------------ restart
     def get_state(self) -> dict:
         """Everything needed to continue bit-identically (particles, contact history, lists)."""
@@ -546,6 +667,8 @@ class ParticleSystem:
         nbuilt = self._n_built
         for name in ("first_start", "second_start"):
             st["l_" + name] = cur[name][: nbuilt + 1].copy()
+        if self.clumps is not None:
+            st.update(self.clumps.get_state())
         return st
 
     def set_state(self, state) -> None:
@@ -555,6 +678,9 @@ class ParticleSystem:
             self._alloc_particles(max(int(1.5 * n), 16))
         self.n = n
         for name in _PARTICLE_ARRAYS + _WALL_ARRAYS:
+            if name in ("body", "boff") and "p_" + name not in state:  # written before clumps
+                getattr(self, "_" + name)[:n] = -1 if name == "body" else 0.0
+                continue
             a = np.asarray(state["p_" + name])
             getattr(self, "_" + name)[:n] = a.reshape(getattr(self, "_" + name)[:n].shape)
         npairs = int(state["npairs"])
@@ -580,3 +706,11 @@ class ParticleSystem:
         self.time = float(state["time"])
         self.step_count = int(state["step_count"])
         self._next_id = int(state["next_id"])
+        if "c_nb" in state:
+            from cfddem.particles.clumps import ClumpSet
+
+            self.clumps = ClumpSet()
+            self.clumps.set_state(state)
+            self.clumps.rebuild_csr(self._body[:n], self._ids[:n])
+        else:
+            self.clumps = None
