@@ -75,6 +75,9 @@ def _contact_section(mu_default: float, e_n_default: float) -> dict:
         "e_t": _f(0.33, "-", "tangential restitution of a sticking collision", lo=0.0, lo_open=True, hi=1.0),
         "mu": _nonneg(mu_default, "-", "Coulomb friction coefficient"),
         "mu_r": _nonneg(0.0, "-", "rolling friction coefficient (constant directional torque)"),
+        "E": _pos(5e7, "Pa", "hertz_mindlin: Young's modulus (DEM practice: a reduced value, glass is 6.3e10)"),
+        "nu": _f(0.25, "-", "hertz_mindlin: Poisson ratio", lo=-1.0, lo_open=True, hi=0.5),
+        "e": _f(e_n_default, "-", "hertz_mindlin: coefficient of restitution", lo=0.0, lo_open=True, hi=1.0),
     }
 
 
@@ -177,7 +180,8 @@ SCHEMA: dict[str, dict] = {
         "seed": Key("int", 12345, "-", "seed for polydisperse sizes", lo=0),
     },
     "contact": {
-        "model": Key("str", "linear", "-", "contact law", choices=("linear",)),
+        "model": Key("str", "linear", "-", "contact law: 'linear' spring-dashpot (keys k_n, e_n, e_t, mu, mu_r) or "
+                     "'hertz_mindlin' (keys E, nu, e, mu, mu_r; physics.md §1.2)", choices=("linear", "hertz_mindlin")),
         "particle_particle": _contact_section(0.12, 0.97),
         "particle_wall": _contact_section(0.22, 0.95),
     },
@@ -194,7 +198,9 @@ SCHEMA: dict[str, dict] = {
         "hi": Key("vec3", [0.1, 0.1, 0.1], "m", "box: upper corner"),
         "periodic": Key("bools3", [False, False, False], "-", "box: periodic axes (no walls on those axes)"),
         "walls": Key("tables", [], "-", "extra walls: [[geometry.walls]] with type = 'plane' (point, normal) or "
-                     "'rectangle' (point = centre, normal, u_axis, half_extents = [a, b]); optional mu, mu_r, e_n, e_t, k_n"),
+                     "'rectangle' (point = centre, normal, u_axis, half_extents = [a, b]) or 'cylinder' (the inside of a ring: "
+                     "point = centre, axis, radius, half_height, optional inside = false for the outer surface); "
+                     "optional contact keys mu, mu_r, e_n, e_t, k_n (linear) or E, nu, e (hertz_mindlin)"),
     },
     "silo": _SILO_SCHEMA,
     "inlet": {
@@ -483,7 +489,8 @@ def _suggest_choice(v: str, choices) -> str:
 # --------------------------------------------------------------------------------------------
 # consistency of the whole case
 # --------------------------------------------------------------------------------------------
-_WALL_KEYS = {"type", "point", "normal", "u_axis", "half_extents", "mu", "mu_r", "e_n", "e_t", "k_n", "name"}
+_WALL_KEYS = {"type", "point", "normal", "u_axis", "half_extents", "mu", "mu_r", "e_n", "e_t", "k_n", "name",
+              "E", "nu", "e", "axis", "radius", "half_height", "inside"}
 _INITIAL_KEYS = {"pos", "vel", "omega", "radius"}
 
 
@@ -535,12 +542,21 @@ def _check_consistency(r: dict, case_dir: Path) -> None:
             if k not in _WALL_KEYS:
                 raise CaseError(f"{key}.{k}", "unknown key" + _suggest(k, _WALL_KEYS))
         wt = w.get("type")
-        if wt not in ("plane", "rectangle"):
-            raise CaseError(f"{key}.type", f"{wt!r} is not allowed: one of 'plane', 'rectangle'")
+        if wt not in ("plane", "rectangle", "cylinder"):
+            raise CaseError(f"{key}.type", f"{wt!r} is not allowed: one of 'plane', 'rectangle', 'cylinder'")
         _vec(f"{key}.point", w.get("point"))
-        nrm = _vec(f"{key}.normal", w.get("normal"))
+        nkey = "axis" if wt == "cylinder" else "normal"
+        nrm = _vec(f"{key}.{nkey}", w.get(nkey))
         if math.hypot(*nrm) == 0:
-            raise CaseError(f"{key}.normal", "must not be the zero vector")
+            raise CaseError(f"{key}.{nkey}", "must not be the zero vector")
+        if wt == "cylinder":
+            for k in ("radius", "half_height"):
+                if k not in w:
+                    raise CaseError(f"{key}.{k}", "required for a cylinder wall (m)")
+                if not _as_float(f"{key}.{k}", w[k]) > 0:
+                    raise CaseError(f"{key}.{k}", f"must be positive, got {w[k]!r}")
+            if "inside" in w and not isinstance(w["inside"], bool):
+                raise CaseError(f"{key}.inside", f"expected true or false, got {w['inside']!r}")
         if wt == "rectangle":
             _vec(f"{key}.u_axis", w.get("u_axis"))
             he = _vec(f"{key}.half_extents", w.get("half_extents"), 2)
@@ -554,6 +570,12 @@ def _check_consistency(r: dict, case_dir: Path) -> None:
                 raise CaseError(f"{key}.{k}", "must be in (0, 1]")
         if "k_n" in w and _as_float(f"{key}.k_n", w["k_n"]) <= 0:
             raise CaseError(f"{key}.k_n", "must be positive")
+        if "E" in w and not (0 < _as_float(f"{key}.E", w["E"]) < INF):
+            raise CaseError(f"{key}.E", "Young's modulus must be positive (Pa)")
+        if "nu" in w and not (-1 < _as_float(f"{key}.nu", w["nu"]) <= 0.5):
+            raise CaseError(f"{key}.nu", "Poisson ratio must be in (-1, 0.5]")
+        if "e" in w and not (0 < _as_float(f"{key}.e", w["e"]) <= 1):
+            raise CaseError(f"{key}.e", "must be in (0, 1]")
     for i, t in enumerate(p["initial"]):
         key = f"particles.initial[{i}]"
         for k in t:
@@ -690,6 +712,10 @@ eta_n = -2 ln(e_n) sqrt(m* k_n) / sqrt(pi^2 + ln^2 e_n), k_t = (2/7) k_n (pi^2 +
 eta_t (with m_t = 2/7 m*), the collision time t_c = sqrt(m* (pi^2 + ln^2 e_n)/k_n) (m* = m/2
 particle-particle, m particle-wall); dt/t_c (warning above t_c/20, refused above t_c/5 unless
 `time.force = true` or `--force`); the expected particle count and memory.
+With `contact.model = "hertz_mindlin"`: E* = E/(2(1 - nu^2)), G* = E/(4(2 - nu)(1 + nu)), beta, and
+at the expected impact speed v (the case's speed scale, at least 1 m/s) the Hertz collision time
+t_c = 2.87 (m*^2/(R* E*^2 v))^(1/5) and the Rayleigh time T_R = pi R sqrt(rho/G)/(0.1631 nu + 0.8766);
+warning above dt = t_c/20 or 0.2 T_R, refused above t_c/5 unless forced.
 
 This file is generated from `cfddem/config.py` (`python -m cfddem.config > docs/case-format.md`);
 a test keeps it current.

@@ -35,12 +35,36 @@ class WallSpec:
     """A wall as the case describes it (converted to the engine's wall objects by the caller)."""
 
     name: str
-    kind: str  # "plane" | "rectangle"
+    kind: str  # "plane" | "rectangle" | "cylinder" (normal = axis, half_extents = (radius, half_height))
     point: np.ndarray
     normal: np.ndarray
     u_axis: np.ndarray | None = None
     half_extents: tuple[float, float] | None = None
-    params: dict | None = None  # k_n, e_n, e_t, mu, mu_r
+    params: dict | None = None  # k_n, e_n, e_t, mu, mu_r (linear) or E, nu, e, mu, mu_r (hertz_mindlin)
+    inside: bool = True  # cylinder: particles inside the ring
+
+    def quads(self, size: float = 1.0, segments: int = 32) -> list[np.ndarray]:
+        """Quadrilaterals for drawing: the corners of a plane/rectangle, or a cylinder's band of
+        ``segments`` quads."""
+        if self.kind != "cylinder":
+            return [self.corners(size)]
+        a = self.normal / np.linalg.norm(self.normal)
+        t = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        e1 = t - np.dot(t, a) * a
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(a, e1)
+        rc, hh = self.half_extents
+        ph = np.linspace(0.0, 2.0 * np.pi, segments + 1)
+        ring = [self.point + rc * (np.cos(f) * e1 + np.sin(f) * e2) for f in ph]
+        return [np.array([ring[k] - hh * a, ring[k + 1] - hh * a, ring[k + 1] + hh * a, ring[k] + hh * a])
+                for k in range(segments)]
+
+    def box(self) -> np.ndarray:
+        """(2, 3) lower and upper corner of a cylinder's axis-aligned bounding box."""
+        a = self.normal / np.linalg.norm(self.normal)
+        rc, hh = self.half_extents
+        ext = hh * np.abs(a) + rc * np.sqrt(np.clip(1.0 - a * a, 0.0, 1.0))
+        return np.array([self.point - ext, self.point + ext])
 
     def corners(self, size: float = 1.0) -> np.ndarray:
         """Four corners (for drawing); planes are drawn as a square of side 2*size."""
@@ -90,7 +114,13 @@ def wall_specs(case: Case) -> list[WallSpec]:
 
         walls.extend(silo_walls(case))
     for i, w in enumerate(geo.walls):
-        params = {k: float(w[k]) for k in ("k_n", "e_n", "e_t", "mu", "mu_r") if k in w}
+        params = {k: float(w[k]) for k in ("k_n", "e_n", "e_t", "mu", "mu_r", "E", "nu", "e") if k in w}
+        if w["type"] == "cylinder":
+            walls.append(WallSpec(w.get("name", f"wall{i}"), "cylinder", np.array(w["point"], float),
+                                  np.array(w["axis"], float), None,
+                                  (float(w["radius"]), float(w["half_height"])), params,
+                                  inside=bool(w.get("inside", True))))
+            continue
         spec = WallSpec(w.get("name", f"wall{i}"), w["type"], np.array(w["point"], float),
                         np.array(w["normal"], float),
                         np.array(w["u_axis"], float) if "u_axis" in w else None,
@@ -109,8 +139,9 @@ def wall_specs(case: Case) -> list[WallSpec]:
 
 
 def walls_bounding_box(walls: list[WallSpec], case: Case) -> tuple[np.ndarray, np.ndarray]:
-    """Bounding box of the scene (for lost-particle detection): rectangles' corners, box limits."""
-    pts = [w.corners() for w in walls if w.kind == "rectangle"]
+    """Bounding box of the scene (for lost-particle detection): rectangles' corners, cylinders'
+    boxes, box limits."""
+    pts = [w.corners() for w in walls if w.kind == "rectangle"] + [w.box() for w in walls if w.kind == "cylinder"]
     geo = case.geometry
     if geo.type == "box":
         pts.append(np.array([geo.lo, geo.hi], float))

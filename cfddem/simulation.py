@@ -141,8 +141,8 @@ class Simulation:
             periodic = tuple((case.geometry.lo[i], case.geometry.hi[i]) if case.geometry.periodic[i] else None
                              for i in range(3))
         self.system = ParticleSystem(
-            pp=contact_law(case.resolved["contact"]["particle_particle"]),
-            walls=[engine_wall(w) for w in self.walls],
+            pp=contact_law(case.resolved["contact"]["particle_particle"], case.contact.model),
+            walls=[engine_wall(w, case.contact.model) for w in self.walls],
             dt=self.dt,
             gravity=gravity_vector(case),
             omega=frame_omega(case),
@@ -271,7 +271,7 @@ class Simulation:
         pv = None
         if case.output.vtk:
             pv = ParaViewOutput(self.out, append=self.resume, restart_time=self.system.time if self.resume else None)
-            quads = [w.corners(size=0.1) for w in self.walls]
+            quads = [q for w in self.walls for q in w.quads(size=0.1)]
             if quads:
                 pv.set_walls(quads)
         return res, pv
@@ -495,15 +495,23 @@ class Simulation:
             if not sys_.wall_active(iw):  # a gate that is open
                 continue
             n = w.normal / np.linalg.norm(w.normal)
-            h_now = (cur - w.point) @ n
-            h_old = (old - w.point) @ n
+            p0 = sys_.wall_position(iw)
+            h_now = (cur - p0) @ n
+            h_old = (old - p0) @ n
+            if w.kind == "cylinder":  # signed distance from the ring surface, > 0 on the particles' side
+                sg = 1.0 if w.inside else -1.0
+                inside_ends = (np.abs(h_now) <= w.half_extents[1]) & (np.abs(h_old) <= w.half_extents[1])
+                h_now = sg * (w.half_extents[0] - np.linalg.norm(cur - p0 - np.outer(h_now, n), axis=1))
+                h_old = sg * (w.half_extents[0] - np.linalg.norm(old - p0 - np.outer(h_old, n), axis=1))
             crossed = (h_old >= 0.0) & (h_now < -r)
+            if w.kind == "cylinder":
+                crossed &= inside_ends
             if w.kind == "rectangle" and crossed.any():
                 a1 = w.u_axis - np.dot(w.u_axis, n) * n
                 a1 /= np.linalg.norm(a1)
                 a2 = np.cross(n, a1)
                 for q in (cur, old):
-                    d = q - w.point
+                    d = q - p0
                     crossed &= (np.abs(d @ a1) <= w.half_extents[0]) & (np.abs(d @ a2) <= w.half_extents[1])
             if crossed.any():
                 i = int(np.flatnonzero(crossed)[0])
@@ -627,20 +635,33 @@ def check_disk_space(case: Case, out: Path) -> None:
 # ----------------------------------------------------------------------------------------------
 # engine adapters and derived numbers (shared with `cfddem check`)
 # ----------------------------------------------------------------------------------------------
-def contact_law(params: dict):
-    from .particles.contact import LinearContact
+def contact_law(params: dict, model: str | None = None):
+    """The engine's contact law for a contact table: ``model`` "linear" (k_n, e_n, e_t, mu, mu_r)
+    or "hertz_mindlin" (E, nu, e, mu, mu_r; physics.md §1.2).  Without ``model`` the table's own
+    "model" entry decides (default linear)."""
+    from .particles.contact import HertzMindlinContact, LinearContact
 
+    model = model or params.get("model", "linear")
+    if model == "hertz_mindlin":
+        return HertzMindlinContact(E=params["E"], nu=params["nu"], e=params["e"], mu=params["mu"],
+                                   mu_r=params["mu_r"])
+    if model != "linear":
+        raise CaseError("contact.model", f"{model!r} is not allowed: one of 'linear', 'hertz_mindlin'")
     return LinearContact(k_n=params["k_n"], e_n=params["e_n"], e_t=params["e_t"], mu=params["mu"],
                          mu_r=params["mu_r"])
 
 
-def engine_wall(w):
-    """The engine's wall object for a :class:`~cfddem.scene.WallSpec`."""
-    from .particles.walls import PlaneWall, RectangleWall
+def engine_wall(w, model: str | None = None):
+    """The engine's wall object for a :class:`~cfddem.scene.WallSpec` (``model``: see
+    :func:`contact_law`)."""
+    from .particles.walls import CylinderWall, PlaneWall, RectangleWall
 
-    law = contact_law(w.params)
+    law = contact_law(w.params, model)
     if w.kind == "plane":
         return PlaneWall(contact=law, name=w.name, point=tuple(w.point), normal=tuple(w.normal))
+    if w.kind == "cylinder":
+        return CylinderWall(contact=law, name=w.name, point=tuple(w.point), axis=tuple(w.normal),
+                            radius=w.half_extents[0], half_height=w.half_extents[1], inside=w.inside)
     return RectangleWall(contact=law, name=w.name, point=tuple(w.point), normal=tuple(w.normal),
                          axis1=tuple(w.u_axis), half1=w.half_extents[0], half2=w.half_extents[1])
 
@@ -650,14 +671,33 @@ def particle_mass(case: Case, diameter: float | None = None) -> float:
     return case.particles.density * math.pi / 6.0 * d ** 3
 
 
+def impact_speed(case: Case) -> float:
+    """Impact speed for the Hertz collision time: the case's speed scale
+    (:func:`expected_max_speed`), at least 1 m/s."""
+    return max(expected_max_speed(case), 1.0)
+
+
 def collision_time(case: Case) -> float:
-    """The shortest normal collision time of the case (pp with m* = m/2 of the smallest
-    particle; pw with m* = m)."""
+    """The shortest normal collision time of the case (pp with m* = m/2, R* = R/2 of the
+    smallest particle; pw with m* = m, R* = R).  Hertz-Mindlin: the Hertz time at
+    :func:`impact_speed`."""
     m = particle_mass(case)
-    tcs = [contact_law(case.resolved["contact"]["particle_particle"]).collision_time(0.5 * m)]
+    r = 0.5 * case.particles.diameter
+    v = impact_speed(case) if case.contact.model == "hertz_mindlin" else None
+    model = case.contact.model
+    tcs = [contact_law(case.resolved["contact"]["particle_particle"], model).collision_time(0.5 * m, 0.5 * r, v)]
     for w in wall_specs(case):
-        tcs.append(contact_law(w.params).collision_time(m))
+        tcs.append(contact_law(w.params, model).collision_time(m, r, v))
     return min(tcs)
+
+
+def rayleigh_time(case: Case) -> float:
+    """Hertz-Mindlin: the Rayleigh time of the smallest particle (particle-particle material);
+    linear law: inf."""
+    if case.contact.model != "hertz_mindlin":
+        return math.inf
+    law = contact_law(case.resolved["contact"]["particle_particle"], "hertz_mindlin")
+    return law.rayleigh_time(0.5 * case.particles.diameter, case.particles.density)
 
 
 def has_particles(case: Case) -> bool:
@@ -678,6 +718,10 @@ def check_time_step(case: Case, log=None) -> float:
     if ratio > 0.05 and log is not None:
         log.warning("time.dt = %g s is %.1f t_c/20: collisions resolved by fewer than 20 steps", case.time.dt,
                     ratio * 20)
+    tr = rayleigh_time(case)
+    if case.time.dt > 0.2 * tr and log is not None:
+        log.warning("time.dt = %g s is %.2g T_R (Rayleigh time %.3g s): above the usual 0.2 T_R of "
+                    "Hertz-Mindlin DEM", case.time.dt, case.time.dt / tr, tr)
     return ratio
 
 
@@ -731,12 +775,26 @@ def describe_case(case: Case) -> list[str]:
     lines.append(f"particle: d = {d * 1e3:.3g} mm" + (f"..{case.particles.diameter_max * 1e3:.3g} mm"
                                                      if case.particles.diameter_max else "")
                  + f", rho = {case.particles.density:g} kg/m3, m = {m:.4g} kg, I = {0.1 * m * d * d:.4g} kg m2")
-    pp = contact_law(case.resolved["contact"]["particle_particle"])
-    for label, law, meff in [("particle-particle", pp, 0.5 * m)] + [
-            (f"particle-wall ({w.name})", contact_law(w.params), m) for w in wall_specs(case)]:
+    model = case.contact.model
+    pp = contact_law(case.resolved["contact"]["particle_particle"], model)
+    r = 0.5 * d
+    v = impact_speed(case)
+    for label, law, meff, reff in [("particle-particle", pp, 0.5 * m, 0.5 * r)] + [
+            (f"particle-wall ({w.name})", contact_law(w.params, model), m, r) for w in wall_specs(case)]:
+        if model == "hertz_mindlin":
+            dv = law.derived(meff, reff, v)
+            lines.append(f"{label}: Hertz-Mindlin E* = {dv['E_star']:.4g} Pa, G* = {dv['G_star']:.4g} Pa, "
+                         f"beta = {dv['beta']:.4g}; at v = {v:.3g} m/s: max overlap {dv['d_max'] / r:.3g} R, "
+                         f"S_n = {dv['S_n']:.4g} N/m, eta_n = {dv['eta_n']:.4g} kg/s, S_t = {dv['S_t']:.4g} N/m, "
+                         f"t_c = {dv['t_c']:.4g} s (m* = {meff:.4g} kg, R* = {reff:.4g} m)")
+            continue
         dv = law.derived(meff)
         lines.append(f"{label}: k_n = {law.k_n:g} N/m, eta_n = {dv['eta_n']:.4g} kg/s, k_t = {dv['k_t']:.4g} N/m, "
                      f"eta_t = {dv['eta_t']:.4g} kg/s, t_c = {dv['t_c']:.4g} s (m* = {meff:.4g} kg)")
+    if model == "hertz_mindlin":
+        tr = rayleigh_time(case)
+        lines.append(f"Rayleigh time T_R = {tr:.4g} s: dt = {case.time.dt / tr:.3g} T_R "
+                     f"({'OK' if case.time.dt <= 0.2 * tr else 'WARNING: above 0.2 T_R'})")
     tc = collision_time(case)
     ratio = case.time.dt / tc
     if has_particles(case):

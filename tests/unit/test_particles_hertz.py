@@ -213,3 +213,89 @@ def test_one_and_two_threads_bit_identical():
     finally:
         numba.set_num_threads(old)
     assert np.array_equal(out[0], out[1])
+
+
+# --- case level: contact.model, HM keys, check numbers, cylinder walls in a case -----------------
+def _hm_case(**extra):
+    from cfddem.config import build_case
+
+    raw = {"contact": {"model": "hertz_mindlin",
+                       "particle_particle": {"E": 5e7, "nu": 0.3, "e": 0.6, "mu": 0.4},
+                       "particle_wall": {"E": 1e8, "nu": 0.25, "e": 0.5, "mu": 0.5}},
+           "geometry": {"type": "box", "lo": [0, 0, 0], "hi": [0.05, 0.05, 0.05]},
+           "particles": {"initial": [{"pos": [0.025, 0.025, 0.025]}]},
+           "time": {"dt": 2e-6}}
+    for k, v in extra.items():
+        raw.setdefault(k, {}).update(v)
+    return build_case(raw)
+
+
+def test_case_hertz_mindlin_laws_and_check_numbers():
+    from cfddem.simulation import (check_time_step, collision_time, contact_law, describe_case,
+                                   engine_wall, rayleigh_time)
+    from cfddem.scene import wall_specs
+
+    case = _hm_case()
+    pp = contact_law(case.resolved["contact"]["particle_particle"], case.contact.model)
+    assert isinstance(pp, HertzMindlinContact) and (pp.E, pp.nu, pp.e, pp.mu) == (5e7, 0.3, 0.6, 0.4)
+    walls = [engine_wall(w, case.contact.model) for w in wall_specs(case)]
+    assert len(walls) == 6 and all(isinstance(w.contact, HertzMindlinContact) and w.contact.E == 1e8 for w in walls)
+    m = RHO * math.pi / 6 * 0.003**3
+    v = 1.0  # no speed scale in a box: the 1 m/s floor
+    tc_pp = pp.collision_time(m / 2, 0.75e-3, v)
+    tc_pw = walls[0].contact.collision_time(m, 1.5e-3, v)
+    assert collision_time(case) == pytest.approx(min(tc_pp, tc_pw), rel=1e-14)
+    G = 5e7 / (2 * 1.3)
+    assert rayleigh_time(case) == pytest.approx(math.pi * 1.5e-3 * math.sqrt(RHO / G) / (0.1631 * 0.3 + 0.8766), rel=1e-14)
+    assert check_time_step(case) == pytest.approx(2e-6 / min(tc_pp, tc_pw), rel=1e-14)
+    text = "\n".join(describe_case(case))
+    assert "Hertz-Mindlin E* = " in text and "Rayleigh time" in text
+    # above t_c/5: refused naming time.dt; forced: accepted
+    big = 0.3 * min(tc_pp, tc_pw)
+    with pytest.raises(CaseError) as ei:
+        check_time_step(_hm_case(time={"dt": big}))
+    assert ei.value.key == "time.dt"
+    assert check_time_step(_hm_case(time={"dt": big, "force": True})) > 0.2
+
+
+def test_case_hm_key_validation_and_hints():
+    with pytest.raises(CaseError) as ei:
+        _hm_case(contact={"particle_particle": {"nu": 0.7}})
+    assert ei.value.key == "contact.particle_particle.nu"
+    with pytest.raises(CaseError) as ei:
+        _hm_case(contact={"particle_wall": {"E": -1.0}})
+    assert ei.value.key == "contact.particle_wall.E"
+    with pytest.raises(CaseError) as ei:
+        _hm_case(contact={"model": "hertz"})
+    assert ei.value.key == "contact.model" and "hertz_mindlin" in str(ei.value)
+    with pytest.raises(CaseError) as ei:
+        _hm_case(contact={"particle_particle": {"nuu": 0.3}})
+    assert ei.value.key == "contact.particle_particle.nuu" and "did you mean 'nu'" in str(ei.value)
+
+
+def test_case_cylinder_wall_entry():
+    from cfddem.particles import CylinderWall
+    from cfddem.scene import wall_specs, walls_bounding_box
+    from cfddem.simulation import engine_wall
+
+    cyl = {"type": "cylinder", "name": "ring", "point": [0.0, 0.0, 0.0], "axis": [0, 0, 1], "radius": 0.05,
+           "half_height": 0.02, "mu": 0.6, "E": 2e8}
+    case = _hm_case(geometry={"type": "none", "walls": [cyl]},
+                    particles={"initial": [{"pos": [0.0, 0.0, 0.0]}]})
+    specs = wall_specs(case)
+    assert [w.kind for w in specs] == ["cylinder"]
+    w = engine_wall(specs[0], case.contact.model)
+    assert isinstance(w, CylinderWall) and w.radius == 0.05 and w.half_height == 0.02 and w.inside
+    assert w.contact.mu == 0.6 and w.contact.E == 2e8 and w.contact.nu == 0.25  # override + table
+    lo, hi = walls_bounding_box(specs, case)
+    np.testing.assert_allclose(lo, [-0.05, -0.05, -0.02])
+    np.testing.assert_allclose(hi, [0.05, 0.05, 0.02])
+    assert len(specs[0].quads()) == 32
+    for bad, key in [({"radius": 0.0}, "radius"), ({"axis": [0, 0, 0]}, "axis"), ({"half_height": None}, "half_height")]:
+        c2 = dict(cyl)
+        c2.update(bad)
+        if bad.get("half_height", 1) is None:
+            del c2["half_height"]
+        with pytest.raises(CaseError) as ei:
+            _hm_case(geometry={"type": "none", "walls": [c2]})
+        assert ei.value.key == f"geometry.walls[0].{key}"
