@@ -5,6 +5,7 @@
     cfddem compare RUN_A RUN_B [--out DIR]
     cfddem sweep CASE --vary KEY=V1,V2,... [--scheduler ADDRESS] [--workers N]
     cfddem accuracy SWEEP_DIR [--reference NAME]
+    cfddem beverloo SILO_CASE --widths B1,B2,... [--set K=V]... [--out DIR] [--workers N]
     cfddem report OUT
 
 Exit codes: 0 success, 2 bad input (one line on stderr), 3 a run that failed (blow-up or solver
@@ -66,6 +67,10 @@ def _parser() -> argparse.ArgumentParser:
         add_sweep_parser = None
     if add_sweep_parser is not None:
         add_sweep_parser(sub)
+
+    from .silo_study import add_beverloo_parser
+
+    add_beverloo_parser(sub)
 
     rep = sub.add_parser("report", help="(re)write the PNG plots of a finished run")
     rep.add_argument("out", help="a run folder (holding results.h5)")
@@ -159,6 +164,10 @@ def _dispatch(args) -> int:
         from .sweep import run_sweep_from_args
 
         return run_sweep_from_args(args)
+    if args.command == "beverloo":
+        from .silo_study import run_beverloo_from_args
+
+        return run_beverloo_from_args(args)
     if args.command == "report":
         from pathlib import Path
 
