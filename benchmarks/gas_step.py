@@ -31,7 +31,7 @@ def bed_porosity(g, t, rng_field):
     return np.clip(1.0 - solid + 0.08 * rng_field, 0.4, 1.0)
 
 
-def chute_solver(shape=(16, 15, 150), lengths=(0.08, 0.045, 0.9), tol=1e-8):
+def chute_solver(shape=(16, 15, 150), lengths=(0.08, 0.045, 0.9), tol=1e-8, solver="mg"):
     th = np.radians(30.0)
     up = np.array([0.0, np.cos(th), -np.sin(th)])
     omega = tuple(16 * 2 * np.pi / 60 * up)
@@ -40,7 +40,8 @@ def chute_solver(shape=(16, 15, 150), lengths=(0.08, 0.045, 0.9), tol=1e-8):
     g = StaggeredGrid(shape, lengths)
     bcs = {"x-": NoSlip(), "x+": NoSlip(), "y-": NoSlip(), "y+": LidCrossWind(omega=omega, axis_point=axis),
            "z-": Inlet(speed=1.0), "z+": PressureOutlet(p=lambda x, y, z: 1.2 * (gvec[1] * y + gvec[2] * z))}
-    return g, GasSolver(g, rho=1.2, mu=1.8e-5, bcs=bcs, gravity=gvec, omega=omega, axis_point=axis, tol=tol)
+    return g, GasSolver(g, rho=1.2, mu=1.8e-5, bcs=bcs, gravity=gvec, omega=omega, axis_point=axis, tol=tol,
+                        pressure_solver=solver)
 
 
 def cube_solver(n=64, tol=1e-8):

@@ -39,6 +39,7 @@ from cfddem.gas.boundaries import BoundarySet
 from cfddem.gas.grid import Field, StaggeredGrid
 from cfddem.gas.momentum import momentum_rhs, viscous_laplacian
 from cfddem.gas.operators import porous_divergence_kernel
+from cfddem.gas.multigrid import MGPressureSolver
 from cfddem.gas.pressure import PressureSolver
 
 _LOC = ("fcc", "cfc", "ccf")
@@ -91,13 +92,15 @@ class GasSolver:
                  gravity=(0.0, 0.0, 0.0), omega=(0.0, 0.0, 0.0), axis_point=(0.0, 0.0, 0.0),
                  advection: str = "tvd", tol: float = 1e-8, maxiter: int = 200, lambda_bulk: float = 0.0,
                  rebuild_threshold: float = float("inf"), cfl_max: float = 0.5, viscosity: str = "explicit",
-                 viscous_tol: float = 1e-10, viscous_maxiter: int = 500):
+                 viscous_tol: float = 1e-10, viscous_maxiter: int = 500, pressure_solver: str = "mg"):
         if rho <= 0:
             raise CaseError("gas.rho", f"must be positive, got {rho}")
         if mu < 0:
             raise CaseError("gas.mu", f"must be non-negative, got {mu}")
         if viscosity not in ("explicit", "implicit"):
             raise CaseError("gas.viscosity", f"'explicit' or 'implicit', got {viscosity!r}")
+        if pressure_solver not in ("mg", "amg"):
+            raise CaseError("gas.pressure_solver", f"'mg' or 'amg', got {pressure_solver!r}")
         if advection not in ("tvd", "central"):
             raise CaseError("gas.advection", f"'tvd' or 'central', got {advection!r}")
         self.grid = grid
@@ -122,8 +125,12 @@ class GasSolver:
         self.eps = Field(grid, "ccc", np.ones(grid.array_shape("ccc")))
         self._eps_prev = self.eps.data.copy()
         self._eps_set = False
-        self.psolver = PressureSolver(grid, self.bc.pressure_bc, tol=tol, maxiter=maxiter,
-                                      rebuild_threshold=rebuild_threshold)
+        self.pressure_solver = pressure_solver
+        if pressure_solver == "mg":
+            self.psolver = MGPressureSolver(grid, self.bc.pressure_bc, tol=tol, maxiter=maxiter)
+        else:
+            self.psolver = PressureSolver(grid, self.bc.pressure_bc, tol=tol, maxiter=maxiter,
+                                          rebuild_threshold=rebuild_threshold)
         self._phi = np.zeros(grid.shape)
         self._rhs = [np.zeros(grid.array_shape(loc)) for loc in _LOC]
         self._work = [np.zeros(grid.array_shape(loc)) for loc in _LOC]

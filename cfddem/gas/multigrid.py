@@ -1,0 +1,775 @@
+"""Compiled geometric multigrid for the pressure equation on the regular cell-centred grid.
+
+Solves the same system as :class:`cfddem.gas.pressure.PressureSolver`,
+
+    (A phi)_c = sum_{faces f of c} a_f (phi_c - phi_nb(f)) / h_f^2 = b_c,
+
+with Neumann (no term), Dirichlet on the boundary face (ghost ``-phi_c``: term ``2 a_f phi_c /
+h^2``) and periodic sides, by conjugate gradients preconditioned with one symmetric
+multigrid V-cycle.  Internally the operator is multiplied by the cell volume V (``W_f = a_f
+A_f / d_f``: face area over centre distance), which makes the coarse-grid operators and the
+restriction of residuals (sums) natural; the relative residual ``||b - A phi|| / ||b||`` is
+the same.
+
+Hierarchy (built once per grid, in Python):
+
+* cell-centred coarsening by 2 along each axis whose typical cell width is at most twice
+  the smallest one (semi-coarsening keeps the coarse cells roughly isotropic, so point
+  Gauss-Seidel still smooths); coarse cell I covers fine cells 2I and 2I+1, and an odd
+  count leaves the last coarse cell with one fine cell (ceil(n/2) coarse cells: coarse
+  grids may be non-uniform, all widths and centre distances are tracked per axis);
+* until at most ``coarse_max`` cells remain (or no axis can be coarsened); the coarsest
+  system is solved exactly by a dense Cholesky factorisation (refactored at every set-up).
+  A singular system (no Dirichlet side) gets ``c 1 1^T`` added on the coarsest level
+  (c = mean diagonal / N), which gives the mean-free solution of a compatible system.
+
+Coefficients (rebuilt at every :meth:`MGPressureSolver.set_coefficients`, O(N), compiled):
+the coarse operator is the re-discretisation on the coarse cells, ``W_F = abar_F A_F / D_F``
+with ``abar_F`` the **area-weighted arithmetic mean** of the fine coefficients on the coarse
+face (faces in parallel: their conductances add) and D_F the coarse centre distance.  That
+equals the piecewise-constant Galerkin sum ``sum_f W_f`` times ``d_f / D_F`` (d_f the fine
+centre distance across the face), which is how it is computed; Dirichlet terms scale with
+the boundary-cell widths in the same way.  (For a coefficient that jumps *along* the normal
+inside a coarse cell a harmonic mean would be closer; the bed/air porosity jump is a factor
+~5 in a = eps^2 and costs about one CG iteration, measured.)
+
+Transfers: prolongation P is cell-centred (tri)linear interpolation along the coarsened axes
+(piecewise constant along the others; at Neumann sides the ghost equals the coarse cell
+value, at Dirichlet sides it is its negative, periodic sides wrap); restriction is P^T
+(order 2 + 2 > 2, the condition of Mohr & Wienands (2004) for cell-centred multigrid).
+
+Smoother: red-black Gauss-Seidel, ``nu`` sweeps red-then-black before the coarse-grid
+correction and ``nu`` sweeps black-then-red in reverse cell order after it, so the V-cycle
+is a symmetric positive definite operator (R = P^T, adjoint pre/post smoothing, exact
+coarsest solve) and a valid CG preconditioner.  With an odd periodic axis the two colours
+touch across the wrap; the sweeps then are ordinary Gauss-Seidel sweeps in the red-black
+order and the reverse order is still their adjoint.
+
+All kernels are serial (one numba thread), so results do not depend on the thread count and
+the reductions (CG dot products) are in a fixed order.  On the 2-core machines a 36,000-cell
+solve does not gain from threads (measured, docs/gas.md).
+
+References: Trottenberg, Oosterlee & Schueller, *Multigrid* (2001), ch. 2-5; Mohr &
+Wienands, Comput. Vis. Sci. 7 (2004) 129 (cell-centred transfers); Tatebe, Copper Mountain
+Conf. (1993) (multigrid-preconditioned CG).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from numba import uint64 as U
+
+from cfddem._jit import kernel
+from cfddem.gas.pressure import SolveInfo
+
+_KIND = {"neumann": 0, "dirichlet": 1, "periodic": 2}
+SIDES = ("x-", "x+", "y-", "y+", "z-", "z+")
+
+
+# ------------------------------------------------------------------------------------------
+# compiled kernels: level l occupies cells off..off+nx*ny*nz of every level array, C order
+# ------------------------------------------------------------------------------------------
+@kernel
+def _fine_coefficients(ax, ay, az, sc, dirich, periodic, cE, cN, cT, dX, dY, dZ):
+    """Level-0 weights (volume-scaled): cE[c] couples c to its +x neighbour (wrapping), zero
+    at non-periodic +x sides; dX: Dirichlet boundary terms.  sc[d] = V / h_d^2."""
+    nx, ny, nz = ax.shape[0] - 1, ay.shape[1] - 1, az.shape[2] - 1
+    for i in range(nx):
+        for j in range(ny):
+            for k in range(nz):
+                c = (i * ny + j) * nz + k
+                # x
+                w = ax[i + 1, j, k] * sc[0]
+                if i == nx - 1 and (periodic[0] == 0 or nx == 1):
+                    w = 0.0
+                cE[c] = w
+                d = 0.0
+                if i == 0 and dirich[0] == 1:
+                    d += 2.0 * ax[0, j, k] * sc[0]
+                if i == nx - 1 and dirich[1] == 1:
+                    d += 2.0 * ax[nx, j, k] * sc[0]
+                dX[c] = d
+                # y
+                w = ay[i, j + 1, k] * sc[1]
+                if j == ny - 1 and (periodic[1] == 0 or ny == 1):
+                    w = 0.0
+                cN[c] = w
+                d = 0.0
+                if j == 0 and dirich[2] == 1:
+                    d += 2.0 * ay[i, 0, k] * sc[1]
+                if j == ny - 1 and dirich[3] == 1:
+                    d += 2.0 * ay[i, ny, k] * sc[1]
+                dY[c] = d
+                # z
+                w = az[i, j, k + 1] * sc[2]
+                if k == nz - 1 and (periodic[2] == 0 or nz == 1):
+                    w = 0.0
+                cT[c] = w
+                d = 0.0
+                if k == 0 and dirich[4] == 1:
+                    d += 2.0 * az[i, j, 0] * sc[2]
+                if k == nz - 1 and dirich[5] == 1:
+                    d += 2.0 * az[i, j, nz] * sc[2]
+                dZ[c] = d
+
+
+@kernel
+def _coarsen_and_factor(LV, AOFF, AXI, AXF, cE, cN, cT, dX, dY, dZ, dg, idg, dense, singular, omega):
+    """Coarse weights of every level from level 0 (scaled Galerkin sums, see module doc),
+    the diagonals of all levels, and the Cholesky factor of the coarsest level (lower
+    triangle of ``dense``).  Returns 0, or 1 if the coarsest matrix is not positive definite."""
+    L = LV.shape[0]
+    for l in range(L - 1):
+        nx, ny, nz, off = LV[l, 0], LV[l, 1], LV[l, 2], LV[l, 3]
+        mx, my, mz, offc = LV[l + 1, 0], LV[l + 1, 1], LV[l + 1, 2], LV[l + 1, 3]
+        for c in range(offc, offc + mx * my * mz):
+            cE[c] = 0.0
+            cN[c] = 0.0
+            cT[c] = 0.0
+            dX[c] = 0.0
+            dY[c] = 0.0
+            dZ[c] = 0.0
+        ox, oy, oz = AOFF[l, 0], AOFF[l, 1], AOFF[l, 2]
+        for i in range(nx):
+            I = AXI[0, 0, ox + i]
+            fx = AXF[0, 0, ox + i]
+            gx = AXF[1, 0, ox + i]
+            for j in range(ny):
+                J = AXI[0, 1, oy + j]
+                fy = AXF[0, 1, oy + j]
+                gy = AXF[1, 1, oy + j]
+                for k in range(nz):
+                    K = AXI[0, 2, oz + k]
+                    fz = AXF[0, 2, oz + k]
+                    gz = AXF[1, 2, oz + k]
+                    c = off + (i * ny + j) * nz + k
+                    C = offc + (I * my + J) * mz + K
+                    # fx is nonzero only on the last fine child of I (the coarse +x face)
+                    cE[C] += fx * cE[c]
+                    cN[C] += fy * cN[c]
+                    cT[C] += fz * cT[c]
+                    dX[C] += gx * dX[c]
+                    dY[C] += gy * dY[c]
+                    dZ[C] += gz * dZ[c]
+    for l in range(L):
+        nx, ny, nz, off = LV[l, 0], LV[l, 1], LV[l, 2], LV[l, 3]
+        for i in range(nx):
+            im = i - 1 if i > 0 else nx - 1
+            for j in range(ny):
+                jm = j - 1 if j > 0 else ny - 1
+                for k in range(nz):
+                    km = k - 1 if k > 0 else nz - 1
+                    c = off + (i * ny + j) * nz + k
+                    dg[c] = (cE[c] + cE[off + (im * ny + j) * nz + k] + cN[c] + cN[off + (i * ny + jm) * nz + k]
+                             + cT[c] + cT[off + (i * ny + j) * nz + km] + dX[c] + dY[c] + dZ[c])
+                    idg[c] = omega / dg[c]
+    # coarsest level: dense matrix and its Cholesky factor
+    nx, ny, nz, off = LV[L - 1, 0], LV[L - 1, 1], LV[L - 1, 2], LV[L - 1, 3]
+    n = nx * ny * nz
+    for a in range(n):
+        for b in range(n):
+            dense[a, b] = 0.0
+    for i in range(nx):
+        ip = i + 1 if i < nx - 1 else 0
+        for j in range(ny):
+            jp = j + 1 if j < ny - 1 else 0
+            for k in range(nz):
+                kp = k + 1 if k < nz - 1 else 0
+                c = (i * ny + j) * nz + k
+                dense[c, c] += dg[off + c]
+                for dd in range(3):
+                    if dd == 0:
+                        nb, w = (ip * ny + j) * nz + k, cE[off + c]
+                    elif dd == 1:
+                        nb, w = (i * ny + jp) * nz + k, cN[off + c]
+                    else:
+                        nb, w = (i * ny + j) * nz + kp, cT[off + c]
+                    if w != 0.0:
+                        dense[c, nb] -= w
+                        dense[nb, c] -= w
+    if singular:
+        s = 0.0
+        for a in range(n):
+            s += dense[a, a]
+        s /= n * n
+        for a in range(n):
+            for b in range(n):
+                dense[a, b] += s
+    for jj in range(n):  # in-place Cholesky, lower triangle
+        s = dense[jj, jj]
+        for kk in range(jj):
+            s -= dense[jj, kk] * dense[jj, kk]
+        if not s > 0.0:
+            return 1
+        d = np.sqrt(s)
+        dense[jj, jj] = d
+        for ii in range(jj + 1, n):
+            s = dense[ii, jj]
+            for kk in range(jj):
+                s -= dense[ii, kk] * dense[jj, kk]
+            dense[ii, jj] = s / d
+    return 0
+
+
+# Array indices are cast to unsigned (uint64) where they are used: numba then drops the
+# negative-index wrap-around test on every access, which lets LLVM vectorise the stencil
+# loops (measured 2-5x faster on these kernels).  All index arithmetic is in int64 before the
+# cast (numba turns mixed int64/uint64 arithmetic into floats).
+
+
+@kernel
+def _ax(c, cm, cp, dxm, dxp, dym, dyp, cE, cN, cT, dg, x):
+    """(A x)_c of the volume-scaled 7-point operator; cm, cp: the z neighbours of c, dxm...:
+    offsets of the x and y neighbours from c (wrapped at periodic sides)."""
+    return (dg[U(c)] * x[U(c)] - cE[U(c)] * x[U(c + dxp)] - cE[U(c + dxm)] * x[U(c + dxm)]
+            - cN[U(c)] * x[U(c + dyp)] - cN[U(c + dym)] * x[U(c + dym)] - cT[U(c)] * x[U(cp)] - cT[U(cm)] * x[U(cm)])
+
+
+@kernel
+def _gs_sweep(nx, ny, nz, off, cE, cN, cT, dg, idg, x, b, first, reverse):
+    """One red-black Gauss-Seidel sweep (over-relaxed by the omega folded into idg): colour
+    ``first`` then the other, in lexicographic cell order, or in exactly the reverse cell
+    order if ``reverse`` (its adjoint when called with the other ``first``).  Periodic
+    neighbours wrap; non-periodic boundary weights are 0."""
+    for q in range(2):
+        col = (first + q) & 1
+        for ii in range(nx):
+            i = nx - 1 - ii if reverse else ii
+            im = i - 1 if i > 0 else nx - 1
+            ip = i + 1 if i < nx - 1 else 0
+            for jj in range(ny):
+                j = ny - 1 - jj if reverse else jj
+                jm = j - 1 if j > 0 else ny - 1
+                jp = j + 1 if j < ny - 1 else 0
+                k0 = (i + j + col) & 1
+                row = off + (i * ny + j) * nz
+                dxm = (im - i) * ny * nz
+                dxp = (ip - i) * ny * nz
+                dym = (jm - j) * nz
+                dyp = (jp - j) * nz
+                klast = k0 + 2 * ((nz - 1 - k0) // 2)  # last k of this colour (< k0: none)
+                if klast < k0:
+                    continue
+                # interior cells of this colour: k in [kin0, kin1] (no z wrap)
+                kin0 = k0 if k0 > 0 else 2
+                kin1 = klast if klast < nz - 1 else klast - 2
+                first_wrap = k0 == 0
+                last_wrap = klast == nz - 1 and klast > 0
+                for step in range(3):
+                    part = 2 - step if reverse else step
+                    if part == 0:
+                        if first_wrap:
+                            c = row
+                            cp = row + 1 if nz > 1 else row
+                            x[U(c)] += (b[U(c)] - _ax(c, row + nz - 1, cp, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)) * idg[U(c)]
+                    elif part == 1:
+                        if kin1 >= kin0:
+                            if reverse:
+                                for kk in range(kin1, kin0 - 1, -2):
+                                    c = row + kk
+                                    x[U(c)] += (b[U(c)] - _ax(c, c - 1, c + 1, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)) * idg[U(c)]
+                            else:
+                                for kk in range(kin0, kin1 + 1, 2):
+                                    c = row + kk
+                                    x[U(c)] += (b[U(c)] - _ax(c, c - 1, c + 1, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)) * idg[U(c)]
+                    else:
+                        if last_wrap:
+                            c = row + nz - 1
+                            x[U(c)] += (b[U(c)] - _ax(c, c - 1, row, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)) * idg[U(c)]
+
+
+@kernel
+def _apply_level(nx, ny, nz, off, cE, cN, cT, dg, x, b, y, mode):
+    """mode 0: y = A x; mode 1: y = b - A x (the residual), on the level at offset off."""
+    for i in range(nx):
+        im = i - 1 if i > 0 else nx - 1
+        ip = i + 1 if i < nx - 1 else 0
+        for j in range(ny):
+            jm = j - 1 if j > 0 else ny - 1
+            jp = j + 1 if j < ny - 1 else 0
+            row = off + (i * ny + j) * nz
+            dxm = (im - i) * ny * nz
+            dxp = (ip - i) * ny * nz
+            dym = (jm - j) * nz
+            dyp = (jp - j) * nz
+            if nz == 1:
+                v = _ax(row, row, row, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)
+                y[U(row)] = b[U(row)] - v if mode == 1 else v
+                continue
+            v0 = _ax(row, row + nz - 1, row + 1, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)
+            c = row + nz - 1
+            v1 = _ax(c, c - 1, row, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)
+            if mode == 1:
+                for k in range(1, nz - 1):
+                    c = row + k
+                    y[U(c)] = b[U(c)] - _ax(c, c - 1, c + 1, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)
+                y[U(row)] = b[U(row)] - v0
+                y[U(row + nz - 1)] = b[U(row + nz - 1)] - v1
+            else:
+                for k in range(1, nz - 1):
+                    c = row + k
+                    y[U(c)] = _ax(c, c - 1, c + 1, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)
+                y[U(row)] = v0
+                y[U(row + nz - 1)] = v1
+
+
+@kernel
+def _restrict_axis(src, dst, n0, n1, n2, m, axis, AXI, AXF, o):
+    """dst = R_axis src: sum the cells of ``src`` (n0, n1, n2) along ``axis`` into the m coarse
+    cells (dst shape with that extent replaced by m), weights of P^T."""
+    if axis == 0:
+        tot = m * n1 * n2
+    elif axis == 1:
+        tot = n0 * m * n2
+    else:
+        tot = n0 * n1 * m
+    for c in range(tot):
+        dst[U(c)] = 0.0
+    if axis == 2:
+        for ij in range(n0 * n1):
+            rs = ij * n2
+            rd = ij * m
+            for k in range(n2):
+                v = src[U(rs + k)]
+                dst[U(rd + AXI[1, 2, U(o + k)])] += AXF[2, 2, U(o + k)] * v
+                w2 = AXF[3, 2, U(o + k)]
+                if w2 != 0.0:
+                    dst[U(rd + AXI[2, 2, U(o + k)])] += w2 * v
+    elif axis == 1:
+        for i in range(n0):
+            for j in range(n1):
+                rs = (i * n1 + j) * n2
+                w1 = AXF[2, 1, U(o + j)]
+                w2 = AXF[3, 1, U(o + j)]
+                rd1 = (i * m + AXI[1, 1, U(o + j)]) * n2
+                rd2 = (i * m + AXI[2, 1, U(o + j)]) * n2
+                for k in range(n2):
+                    dst[U(rd1 + k)] += w1 * src[U(rs + k)]
+                if w2 != 0.0:
+                    for k in range(n2):
+                        dst[U(rd2 + k)] += w2 * src[U(rs + k)]
+    else:
+        for i in range(n0):
+            w1 = AXF[2, 0, U(o + i)]
+            w2 = AXF[3, 0, U(o + i)]
+            rd1 = AXI[1, 0, U(o + i)] * n1 * n2
+            rd2 = AXI[2, 0, U(o + i)] * n1 * n2
+            rs = i * n1 * n2
+            for c in range(n1 * n2):
+                dst[U(rd1 + c)] += w1 * src[U(rs + c)]
+            if w2 != 0.0:
+                for c in range(n1 * n2):
+                    dst[U(rd2 + c)] += w2 * src[U(rs + c)]
+
+
+@kernel
+def _prolong_axis(src, dst, n0, n1, n2, axis, AXI, AXF, o, add):
+    """dst (n0, n1, n2) (+)= P_axis src, src having the coarse extent along ``axis``."""
+    if axis == 2:
+        m = src.size // (n0 * n1) if n0 * n1 > 0 else 0
+        for ij in range(n0 * n1):
+            rs = ij * m
+            rd = ij * n2
+            for k in range(n2):
+                v = AXF[2, 2, U(o + k)] * src[U(rs + AXI[1, 2, U(o + k)])]
+                w2 = AXF[3, 2, U(o + k)]
+                if w2 != 0.0:
+                    v += w2 * src[U(rs + AXI[2, 2, U(o + k)])]
+                if add:
+                    dst[U(rd + k)] += v
+                else:
+                    dst[U(rd + k)] = v
+    elif axis == 1:
+        for i in range(n0):
+            for j in range(n1):
+                w1 = AXF[2, 1, U(o + j)]
+                w2 = AXF[3, 1, U(o + j)]
+                rd = (i * n1 + j) * n2
+                mm = AXI[0, 1, U(o + n1 - 1)] + 1  # coarse extent
+                r1 = (i * mm + AXI[1, 1, U(o + j)]) * n2
+                r2 = (i * mm + AXI[2, 1, U(o + j)]) * n2
+                if w2 != 0.0:
+                    for k in range(n2):
+                        v = w1 * src[U(r1 + k)] + w2 * src[U(r2 + k)]
+                        if add:
+                            dst[U(rd + k)] += v
+                        else:
+                            dst[U(rd + k)] = v
+                else:
+                    for k in range(n2):
+                        if add:
+                            dst[U(rd + k)] += w1 * src[U(r1 + k)]
+                        else:
+                            dst[U(rd + k)] = w1 * src[U(r1 + k)]
+    else:
+        for i in range(n0):
+            w1 = AXF[2, 0, U(o + i)]
+            w2 = AXF[3, 0, U(o + i)]
+            r1 = AXI[1, 0, U(o + i)] * n1 * n2
+            r2 = AXI[2, 0, U(o + i)] * n1 * n2
+            rd = i * n1 * n2
+            for c in range(n1 * n2):
+                v = w1 * src[U(r1 + c)]
+                if w2 != 0.0:
+                    v += w2 * src[U(r2 + c)]
+                if add:
+                    dst[U(rd + c)] += v
+                else:
+                    dst[U(rd + c)] = v
+
+
+@kernel
+def _vcycle(LV, AOFF, AXI, AXF, cE, cN, cT, dg, idg, dense, x, b, r, t1, t2, nu, rin, zout):
+    """zout = M rin: one symmetric V-cycle from a zero initial guess (rin, zout: level 0).
+    t1, t2: work arrays of level-0 size for the axis-by-axis transfers."""
+    L = LV.shape[0]
+    n0 = LV[0, 0] * LV[0, 1] * LV[0, 2]
+    for c in range(n0):
+        b[c] = rin[c]
+    for l in range(L - 1):
+        nx, ny, nz, off = LV[l, 0], LV[l, 1], LV[l, 2], LV[l, 3]
+        mx, my, mz, offc = LV[l + 1, 0], LV[l + 1, 1], LV[l + 1, 2], LV[l + 1, 3]
+        for c in range(off, off + nx * ny * nz):
+            x[c] = 0.0
+        for s in range(nu):
+            _gs_sweep(nx, ny, nz, off, cE, cN, cT, dg, idg, x, b, 0, False)
+        _apply_level(nx, ny, nz, off, cE, cN, cT, dg, x, b, r, 1)
+        # restriction b_{l+1} = P^T r_l, one axis at a time (z, y, x)
+        ox, oy, oz = AOFF[l, 0], AOFF[l, 1], AOFF[l, 2]
+        _restrict_axis(r[off:off + nx * ny * nz], t1, nx, ny, nz, mz, 2, AXI, AXF, oz)
+        _restrict_axis(t1, t2, nx, ny, mz, my, 1, AXI, AXF, oy)
+        _restrict_axis(t2, b[offc:offc + mx * my * mz], nx, my, mz, mx, 0, AXI, AXF, ox)
+    # coarsest: Cholesky solve
+    nx, ny, nz, off = LV[L - 1, 0], LV[L - 1, 1], LV[L - 1, 2], LV[L - 1, 3]
+    n = nx * ny * nz
+    for a in range(n):
+        s = b[off + a]
+        for kk in range(a):
+            s -= dense[a, kk] * x[off + kk]
+        x[off + a] = s / dense[a, a]
+    for a in range(n - 1, -1, -1):
+        s = x[off + a]
+        for kk in range(a + 1, n):
+            s -= dense[kk, a] * x[off + kk]
+        x[off + a] = s / dense[a, a]
+    for l in range(L - 2, -1, -1):
+        nx, ny, nz, off = LV[l, 0], LV[l, 1], LV[l, 2], LV[l, 3]
+        mx, my, mz, offc = LV[l + 1, 0], LV[l + 1, 1], LV[l + 1, 2], LV[l + 1, 3]
+        ox, oy, oz = AOFF[l, 0], AOFF[l, 1], AOFF[l, 2]
+        # prolongation x_l += P x_{l+1}, one axis at a time (x, y, z)
+        _prolong_axis(x[offc:offc + mx * my * mz], t2[:nx * my * mz], nx, my, mz, 0, AXI, AXF, ox, False)
+        _prolong_axis(t2[:nx * my * mz], t1[:nx * ny * mz], nx, ny, mz, 1, AXI, AXF, oy, False)
+        _prolong_axis(t1[:nx * ny * mz], x[off:off + nx * ny * nz], nx, ny, nz, 2, AXI, AXF, oz, True)
+        for s in range(nu):
+            _gs_sweep(nx, ny, nz, off, cE, cN, cT, dg, idg, x, b, 1, True)
+    for c in range(n0):
+        zout[c] = x[c]
+
+
+@kernel
+def _matvec(nx, ny, nz, cE, cN, cT, dg, x, y):
+    """y = A x on level 0 (volume-scaled)."""
+    _apply_level(nx, ny, nz, 0, cE, cN, cT, dg, x, x, y, 0)
+
+
+@kernel
+def _pcg(LV, AOFF, AXI, AXF, cE, cN, cT, dg, vE, vN, vT, vdg, vidg, dense, xl, bl, rl, t1, t2, nu, singular, tol,
+         maxiter,
+         bvec, xvec, r, z, p, q):
+    """Multigrid-preconditioned CG on level 0: A xvec = bvec, from the initial xvec.
+
+    Stops when the true residual ``||b - A x|| <= tol ||b||`` (the recursive residual is
+    checked each iteration; on apparent convergence the true one is computed and CG
+    restarted from it if it is still too large).  Returns (iterations, relative residual)."""
+    nx, ny, nz = LV[0, 0], LV[0, 1], LV[0, 2]
+    n = nx * ny * nz
+    bn = 0.0
+    for c in range(n):
+        bn += bvec[c] * bvec[c]
+    bn = np.sqrt(bn)
+    if bn == 0.0:
+        for c in range(n):
+            xvec[c] = 0.0
+        return 0, 0.0
+    its = 0
+    rel = 0.0
+    while True:
+        _matvec(nx, ny, nz, cE, cN, cT, dg, xvec, q)
+        rn = 0.0
+        for c in range(n):
+            r[c] = bvec[c] - q[c]
+            rn += r[c] * r[c]
+        rel = np.sqrt(rn) / bn
+        if rel <= tol or its >= maxiter or not np.isfinite(rel):
+            return its, rel
+        _vcycle(LV, AOFF, AXI, AXF, vE, vN, vT, vdg, vidg, dense, xl, bl, rl, t1, t2, nu, r, z)
+        if singular:
+            m = 0.0
+            for c in range(n):
+                m += z[c]
+            m /= n
+            for c in range(n):
+                z[c] -= m
+        rz = 0.0
+        for c in range(n):
+            p[c] = z[c]
+            rz += r[c] * z[c]
+        while its < maxiter:
+            its += 1
+            _matvec(nx, ny, nz, cE, cN, cT, dg, p, q)
+            pq = 0.0
+            for c in range(n):
+                pq += p[c] * q[c]
+            alpha = rz / pq
+            rn = 0.0
+            for c in range(n):
+                xvec[c] += alpha * p[c]
+                r[c] -= alpha * q[c]
+                rn += r[c] * r[c]
+            if np.sqrt(rn) <= tol * bn or not np.isfinite(rn):
+                break
+            _vcycle(LV, AOFF, AXI, AXF, vE, vN, vT, vdg, vidg, dense, xl, bl, rl, t1, t2, nu, r, z)
+            if singular:
+                m = 0.0
+                for c in range(n):
+                    m += z[c]
+                m /= n
+                for c in range(n):
+                    z[c] -= m
+            rz2 = 0.0
+            for c in range(n):
+                rz2 += r[c] * z[c]
+            beta = rz2 / rz
+            rz = rz2
+            for c in range(n):
+                p[c] = z[c] + beta * p[c]
+
+
+# ------------------------------------------------------------------------------------------
+# hierarchy (Python, once per grid)
+# ------------------------------------------------------------------------------------------
+def _axis_transfer(widths, kinds, coarsen):
+    """1D data of one axis between a level (cell widths ``widths``) and the next.
+
+    Returns (coarse widths, par, i1, i2, facf, dfac, w1, w2) per fine cell: parent index,
+    the two interpolation sources and weights (w2 = 0: one source), the face factor d_f/D_F
+    on the last child of each coarse cell (0 elsewhere, or for a non-periodic last face) and
+    the Dirichlet factor w_child / W_parent."""
+    n = widths.size
+    lo, hi = kinds  # 0 neumann, 1 dirichlet, 2 periodic
+    per = lo == 2
+    if not coarsen:
+        par = np.arange(n)
+        facf = np.ones(n)
+        dfac = np.ones(n)
+        return widths.copy(), par, par.copy(), par.copy(), facf, dfac, np.ones(n), np.zeros(n)
+    m = (n + 1) // 2
+    par = np.arange(n) // 2
+    W = np.bincount(par, weights=widths, minlength=m)
+    L = widths.sum()
+    xf = np.cumsum(widths) - 0.5 * widths
+    xc = np.cumsum(W) - 0.5 * W
+    first = 2 * np.arange(m)
+    last = np.minimum(first + 1, n - 1)
+    facf = np.zeros(n)
+    for I in range(m):
+        J = I + 1
+        if J == m:
+            if not per or m == 1:
+                continue
+            J = 0
+        d_f = 0.5 * (widths[last[I]] + widths[first[J]])
+        D = 0.5 * (W[I] + W[J])
+        facf[last[I]] = d_f / D
+    dfac = widths / W[par]
+    i1 = par.copy()
+    i2 = par.copy()
+    w1 = np.ones(n)
+    w2 = np.zeros(n)
+    for i in range(n):
+        I = par[i]
+        if abs(xf[i] - xc[I]) <= 1e-12 * L:
+            continue
+        J = I - 1 if xf[i] < xc[I] else I + 1
+        if 0 <= J < m:
+            XJ, src, sgn = xc[J], J, 1.0
+        else:
+            kind = lo if J < 0 else hi
+            if kind == 2:
+                src = J % m
+                XJ = xc[src] - L if J < 0 else xc[src] + L
+                sgn = 1.0
+            elif kind == 1:
+                face = 0.0 if J < 0 else L
+                XJ, src, sgn = 2.0 * face - xc[I], I, -1.0
+            else:
+                XJ, src, sgn = 2.0 * (0.0 if J < 0 else L) - xc[I], I, 1.0
+        t = (xf[i] - xc[I]) / (XJ - xc[I])
+        if src == I:
+            w1[i] = (1.0 - t) + sgn * t
+        else:
+            i2[i] = src
+            w1[i] = 1.0 - t
+            w2[i] = t
+    return W, par, i1, i2, facf, dfac, w1, w2
+
+
+class MGPressureSolver:
+    """``A = -div(a grad)`` on a grid's cells, solved by multigrid-preconditioned CG.
+
+    Same interface as :class:`~cfddem.gas.pressure.PressureSolver` (``set_coefficients``,
+    ``solve``, ``apply``).  Parameters: grid, pressure_bc (side -> "neumann" | "dirichlet" |
+    "periodic"), tol (relative residual), maxiter, nu (Gauss-Seidel sweeps before and after
+    the coarse-grid correction), coarse_max (cells of the coarsest level, solved densely).
+    There is no set-up to reuse: the whole hierarchy's coefficients are refreshed from the
+    current face coefficients at every ``set_coefficients`` (about one V-cycle's cost).
+    """
+
+    def __init__(self, grid, pressure_bc: dict, *, tol: float = 1e-8, maxiter: int = 200,
+                 nu: int = 2, coarse_max: int = 128, coarsen_ratio: float = 1.5, omega: float = 1.2):
+        self.grid = grid
+        self.pressure_bc = dict(pressure_bc)
+        self.tol = float(tol)
+        self.maxiter = int(maxiter)
+        self.nu = int(nu)
+        self.omega = float(omega)
+        self.singular = not any(v == "dirichlet" for v in self.pressure_bc.values())
+        self.n_rebuilds = 0
+        nx, ny, nz = grid.shape
+        self.N = nx * ny * nz
+        self._fshapes = [(nx + 1, ny, nz), (nx, ny + 1, nz), (nx, ny, nz + 1)]
+        kinds = []
+        for d in range(3):
+            kinds.append((_KIND[self.pressure_bc[SIDES[2 * d]]], _KIND[self.pressure_bc[SIDES[2 * d + 1]]]))
+        self._dirich = np.array([1 if self.pressure_bc[s] == "dirichlet" else 0 for s in SIDES], dtype=np.int64)
+        self._periodic = np.array([1 if k[0] == 2 else 0 for k in kinds], dtype=np.int64)
+        h = grid.spacing
+        V = h[0] * h[1] * h[2]
+        self._vol = V
+        self._sc = np.array([V / h[d] ** 2 for d in range(3)])
+        # --- levels ---
+        widths = [np.full(grid.shape[d], float(h[d])) for d in range(3)]
+        shapes = [tuple(grid.shape)]
+        trans = []  # per level: three axis tuples
+        while shapes[-1][0] * shapes[-1][1] * shapes[-1][2] > coarse_max:
+            cand = [d for d in range(3) if widths[d].size > 1]
+            if not cand:
+                break
+            wmin = min(widths[d].max() for d in cand)
+            co = [d in cand and widths[d].max() <= coarsen_ratio * wmin * (1 + 1e-9) for d in range(3)]
+            axes = [_axis_transfer(widths[d], kinds[d], co[d]) for d in range(3)]
+            trans.append(axes)
+            widths = [a[0] for a in axes]
+            shapes.append(tuple(w.size for w in widths))
+        self.shapes = shapes
+        L = len(shapes)
+        sizes = [a * b * c for a, b, c in shapes]
+        offs = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+        self._LV = np.array([[s[0], s[1], s[2], offs[l]] for l, s in enumerate(shapes)], dtype=np.int64)
+        tot = int(offs[-1])
+        # axis data, concatenated over levels per axis
+        lens = [[shapes[l][d] for l in range(L - 1)] for d in range(3)]
+        M = max(1, max(sum(x) for x in lens))
+        self._AXI = np.zeros((3, 3, M), dtype=np.int64)  # [par, i1, i2][axis][fine cell]
+        self._AXF = np.zeros((4, 3, M))  # [facf, dfac, w1, w2][axis][fine cell]
+        self._AOFF = np.zeros((max(L - 1, 1), 3), dtype=np.int64)
+        for d in range(3):
+            o = 0
+            for l in range(L - 1):
+                W, par, i1, i2, facf, dfac, w1, w2 = trans[l][d]
+                n = par.size
+                self._AOFF[l, d] = o
+                self._AXI[0, d, o:o + n] = par
+                self._AXI[1, d, o:o + n] = i1
+                self._AXI[2, d, o:o + n] = i2
+                self._AXF[0, d, o:o + n] = facf
+                self._AXF[1, d, o:o + n] = dfac
+                self._AXF[2, d, o:o + n] = w1
+                self._AXF[3, d, o:o + n] = w2
+                o += n
+        self._cE, self._cN, self._cT = np.zeros(tot), np.zeros(tot), np.zeros(tot)
+        self._dX, self._dY, self._dZ = np.zeros(tot), np.zeros(tot), np.zeros(tot)
+        self._dg = np.zeros(tot)
+        self._idg = np.zeros(tot)
+        self._v = [self._cE, self._cN, self._cT, self._dg, self._idg]  # the V-cycle's operator
+        self._t1, self._t2 = np.zeros(self.N), np.zeros(self.N)
+        self._xl, self._bl, self._rl = np.zeros(tot), np.zeros(tot), np.zeros(tot)
+        nc = sizes[-1]
+        self._dense = np.zeros((nc, nc))
+        self._vec = [np.zeros(self.N) for _ in range(6)]  # b, x, r, z, p, q
+        self._ready = False
+
+    @property
+    def levels(self) -> list:
+        """Cell counts (nx, ny, nz) of the levels, finest first."""
+        return list(self.shapes)
+
+    def set_coefficients(self, ax: np.ndarray, ay: np.ndarray, az: np.ndarray) -> None:
+        """Face coefficients a_f on all faces, shapes (nx+1,ny,nz), (nx,ny+1,nz), (nx,ny,nz+1);
+        at a periodic side face n is face 0 (give them equal)."""
+        for a, s in zip((ax, ay, az), self._fshapes):
+            if a.shape != s:
+                raise ValueError(f"coefficient shape {a.shape}, expected {s}")
+        _fine_coefficients(np.ascontiguousarray(ax, dtype=np.float64), np.ascontiguousarray(ay, dtype=np.float64),
+                           np.ascontiguousarray(az, dtype=np.float64), self._sc, self._dirich, self._periodic,
+                           self._cE, self._cN, self._cT, self._dX, self._dY, self._dZ)
+        flag = _coarsen_and_factor(self._LV, self._AOFF, self._AXI, self._AXF, self._cE, self._cN, self._cT,
+                                   self._dX, self._dY, self._dZ, self._dg, self._idg, self._dense,
+                                   self.singular, self.omega)
+        self._ready = flag == 0
+
+    # interface of PressureSolver's hierarchy reuse (nothing to reuse here)
+    def needs_rebuild(self) -> bool:
+        return False
+
+    def rebuild(self) -> None:
+        pass
+
+    @property
+    def reference_coefficients(self):
+        return None
+
+    def reuse_state(self) -> dict:
+        return {}
+
+    def set_reuse_state(self, d: dict) -> None:
+        pass
+
+    def apply(self, phi: np.ndarray) -> np.ndarray:
+        """A phi (not volume-scaled: the operator of PressureSolver) for phi of shape (nx, ny, nz)."""
+        nx, ny, nz = self.grid.shape
+        y = np.empty(self.N)
+        _matvec(nx, ny, nz, self._cE, self._cN, self._cT, self._dg,
+                np.ascontiguousarray(phi, dtype=np.float64).ravel(), y)
+        return (y / self._vol).reshape(self.grid.shape)
+
+    def vcycle(self, r: np.ndarray) -> np.ndarray:
+        """One V-cycle applied to a (volume-scaled) residual r: the preconditioner M r."""
+        z = np.empty(self.N)
+        _vcycle(self._LV, self._AOFF, self._AXI, self._AXF, *self._v, self._dense, self._xl, self._bl, self._rl, self._t1, self._t2, self.nu, np.ascontiguousarray(r, dtype=np.float64).ravel(), z)
+        return z
+
+    def solve(self, b: np.ndarray, x0: np.ndarray | None = None) -> tuple:
+        """Solve A phi = b (b of shape (nx,ny,nz)); returns (phi, SolveInfo)."""
+        if not self._ready:
+            return np.full(self.grid.shape, np.nan), SolveInfo(0, np.inf, False, False, 0.0)
+        bv, xv, r, z, p, q = self._vec
+        bv[:] = np.ravel(b)
+        compat = 0.0
+        if self.singular:
+            compat = float(bv.mean())
+            bv -= compat
+        bv *= self._vol
+        if x0 is None:
+            xv[:] = 0.0
+        else:
+            xv[:] = np.ravel(x0)
+        its, rel = _pcg(self._LV, self._AOFF, self._AXI, self._AXF, self._cE, self._cN, self._cT, self._dg,
+                        *self._v, self._dense, self._xl, self._bl, self._rl, self._t1, self._t2, self.nu, self.singular, self.tol, self.maxiter,
+                        bv, xv, r, z, p, q)
+        x = xv.copy()
+        if self.singular:
+            x -= x.mean()
+        converged = bool(np.isfinite(rel) and rel <= self.tol and np.all(np.isfinite(x)))
+        return x.reshape(self.grid.shape), SolveInfo(int(its), float(rel), converged, False, compat)
