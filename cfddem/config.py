@@ -90,6 +90,36 @@ def _wall_override(what: str) -> dict:
                               ("nu", "-", "Poisson ratio (hertz_mindlin)"), ("e", "-", "restitution (hertz_mindlin)"))}
 
 
+_SHEAR_SCHEMA = {
+    "variant": Key("str", "bulk", "-", "'bulk': base ring + shear ring (bulk friction); 'wall': the base ring "
+                   "replaced by a flat plate at the shear plane (wall friction)", choices=("bulk", "wall")),
+    "cell_diameter": _pos(0.095, "m", "inner diameter D of both rings (axis = y through x = z = 0)"),
+    "base_height": _pos(0.013, "m", "height of the base ring (y from 0; the shear plane is its top)"),
+    "ring_height": _pos(0.016, "m", "height of the shear ring above the base ring"),
+    "ring_offset": _nonneg(0.003, "m", "initial offset of the shear ring against the shear direction (-x)"),
+    "normal_stress": _pos(4000.0, "Pa", "consolidation stress sigma on the lid: load sigma pi D^2 / 4"),
+    "load_ramp_time": _nonneg(0.05, "s", "the lid load ramps linearly from 0 over this time"),
+    "shear_speed": _pos(0.003, "m/s", "speed of the shear ring and lid"),
+    "shear_distance": _pos(0.006, "m", "travel of the shear ring (the run stops there)"),
+    "n_particles": Key("int", 3000, "-", "particles (or clumps) of the fill lattice (overfilled, then scraped)", lo=1),
+    "lattice_gap": _f(0.1, "-", "fill lattice spacing d (1 + gap)", lo=0.0, lo_open=True, hi=2.0),
+    "lattice_jitter": _f(0.05, "-", "random displacement of the sites, up to +-jitter d / 2 per axis", lo=0.0, hi=2.0),
+    "fill_time": _nonneg(0.2, "s", "earliest end of the fill (settled check)"),
+    "settle_energy": _pos(1e-8, "J", "kinetic energy per particle below which the fill counts as settled"),
+    "consolidate_time": _nonneg(0.05, "s", "shortest consolidation after the lid is placed"),
+    "lid_settle_speed": _pos(2e-3, "m/s", "consolidation ends when the lid's vertical speed is below this"),
+    "lid_sphere_diameter": _nonneg(0.0, "m", "diameter of the lid's glued spheres (0: particles.diameter)"),
+    "lid_clearance": _nonneg(0.0005, "m", "gap between the lid's outline and the ring"),
+    "lid_density": _pos(7800.0, "kg/m3", "density of the lid's spheres (its weight is cancelled; sets its inertia)"),
+    "check_steps": Key("int", 20, "-", "steps between the scene's checks (load update, force sampling)", lo=1),
+    "sample_interval": _pos(0.01, "s", "interval of the averaged shear samples (/measurements/shear)"),
+    "steady_window": Key("floats", [0.5, 1.0], "-", "bulk friction: mean over shear displacements between these "
+                         "fractions of shear_distance"),
+    "rings": _wall_override("base ring, bottom and shear ring"),
+    "plate": _wall_override("wall-friction plate (variant 'wall')"),
+}
+
+
 _SILO_SCHEMA = {
     "width": _pos(0.15, "m", "inner width of the planar silo (x from 0 to width; y up, the outlet plane at y = 0)"),
     "depth": _pos(0.04, "m", "distance between the front (z = 0) and back (z = depth) walls"),
@@ -102,8 +132,13 @@ _SILO_SCHEMA = {
     "removal_depth": _nonneg(0.0, "m", "particles whose centre falls below y = -removal_depth are removed as "
                              "discharged (0: lip + 1.5 d)"),
     "n_particles": Key("int", 2000, "-", "particles of the fill lattice", lo=1),
-    "fill": Key("str", "lattice", "-", "'lattice': a loose jittered lattice above the bottom, dropped and settled",
-                choices=("lattice",)),
+    "fill": Key("str", "lattice", "-", "'lattice': n_particles on a loose jittered lattice above the bottom, dropped "
+                "and settled; 'pour': jittered lattice layers inserted at pour_height at the mass rate pour_rate "
+                "until n_particles are in", choices=("lattice", "pour")),
+    "pour_rate": _pos(0.5, "kg/s", "pour: mass rate of the pour (one lattice layer every layer mass / rate; a layer "
+                      "that would overlap waits)"),
+    "pour_height": _nonneg(0.0, "m", "pour: height of the inserted layers (0: the top of the lattice fill of the same "
+                           "n_particles)"),
     "lattice_gap": _f(0.12, "-", "fill lattice spacing d (1 + lattice_gap)", lo=0.0, lo_open=True, hi=2.0),
     "lattice_jitter": _f(0.08, "-", "random displacement of each lattice site, up to +-jitter d / 2 per axis "
                          "(seeded by particles.seed; must be below lattice_gap)", lo=0.0, hi=2.0),
@@ -178,6 +213,9 @@ SCHEMA: dict[str, dict] = {
                                 lo=0.0, lo_open=True, hi=1.0),
         "skin": _nonneg(0.0, "m", "Verlet-list skin (0: 0.3 x the largest diameter)"),
         "seed": Key("int", 12345, "-", "seed for polydisperse sizes", lo=0),
+        "clump": Key("str", "none", "-", "particle shape: 'none' (spheres) or a rigid clump of spheres of this "
+                     "diameter: 'pellet2' (two spheres d/2 apart), 'pellet4' (tetrahedron of edge d/2); clumps are "
+                     "inserted by the shear_cell fill (docs/particles.md)", choices=("none", "pellet2", "pellet4")),
     },
     "contact": {
         "model": Key("str", "linear", "-", "contact law: 'linear' spring-dashpot (keys k_n, e_n, e_t, mu, mu_r) or "
@@ -187,8 +225,9 @@ SCHEMA: dict[str, dict] = {
     },
     "geometry": {
         "type": Key("str", "chute", "-", "'chute': floor + two side walls (+ a back wall at the entrance); "
-                    "'box': six walls lo..hi; 'silo': the planar silo of [silo]; 'none': walls only from [[geometry.walls]]",
-                    choices=("chute", "box", "silo", "none")),
+                    "'box': six walls lo..hi; 'silo': the planar silo of [silo]; 'shear_cell': the Jenike shear "
+                    "cell of [shear]; 'none': walls only from [[geometry.walls]]",
+                    choices=("chute", "box", "silo", "shear_cell", "none")),
         "width": _pos(0.08, "m", "chute width (x from 0 to width)"),
         "depth": _pos(0.045, "m", "height of the chute side walls (y from 0 to depth)"),
         "length": _pos(0.9, "m", "chute length (z from z_start to z_start + length)"),
@@ -203,6 +242,7 @@ SCHEMA: dict[str, dict] = {
                      "optional contact keys mu, mu_r, e_n, e_t, k_n (linear) or E, nu, e (hertz_mindlin)"),
     },
     "silo": _SILO_SCHEMA,
+    "shear": _SHEAR_SCHEMA,
     "inlet": {
         "type": Key("str", "none", "-", "'sluice': bcc lattice layers across the chute entrance at a mass rate",
                     choices=("none", "sluice")),
@@ -604,6 +644,13 @@ def _check_consistency(r: dict, case_dir: Path) -> None:
         from .scenes.silo import check_silo_case
 
         check_silo_case(r)
+    if geo["type"] == "shear_cell":
+        from .scenes.shear import check_shear_case
+
+        check_shear_case(r)
+    if p["clump"] != "none" and geo["type"] != "shear_cell":
+        raise CaseError("particles.clump", "clumps are inserted by the shear_cell fill only (the sluice inlet, "
+                                           "silo fill and initial particles insert spheres)")
     if geo["type"] != "chute" and r["gas"]["enabled"]:
         raise CaseError("gas.enabled", "the gas phase is available for geometry.type = 'chute' only")
     if r["frame"]["rpm"] != 0 and r["gravity"]["g"] == 0:

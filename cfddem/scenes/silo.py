@@ -29,9 +29,14 @@ edges at the same point (two equal edge contacts: twice the stiffness, the same 
 
 Filling (``silo.fill = "lattice"``): ``n_particles`` on a cubic lattice of spacing
 d (1 + lattice_gap), each site displaced by up to +-lattice_jitter d/2 per axis (seeded), starting
-just above the flat bottom or the hopper top, at rest, dropped under gravity.  The gate opens at
+just above the flat bottom or the hopper top, at rest, dropped under gravity.  ``fill = "pour"``:
+one layer of that lattice (its own seeded jitter) is inserted at rest at ``pour_height`` every
+m_layer / pour_rate seconds (m_layer the mass of a full layer; the last one is partial) until
+``n_particles`` are in; a layer that would overlap a particle already there waits for the next
+check (so the real rate can fall below pour_rate, never above it).  The gate opens at
 ``gate_time`` (``gate = "time"``) or, with ``gate = "settled"``, at the first check at or after
-``gate_time`` where the kinetic energy per particle is below ``settle_energy``.
+``gate_time`` where all particles are in and the kinetic energy per particle is below
+``settle_energy``.
 
 At the opening: the fill height (:func:`~cfddem.measure.silo.surface_height`, median over 2 d
 wide bins of the highest centre) and the bulk density
@@ -74,6 +79,7 @@ class SiloGeometry:
     depth."""
 
     def __init__(self, silo: dict, d: float, seed: int = 12345):
+        self.seed = seed
         self.W = silo["width"]
         self.L = silo["depth"]
         self.b = silo["outlet_width"]
@@ -88,6 +94,28 @@ class SiloGeometry:
         top = float(self.lattice[:, 1].max()) + 0.5 * d
         self.H = silo["height"] or (top + 2 * d)
         self.lattice_top = top
+        self.pour = silo["fill"] == "pour"
+        self.pour_y = silo["pour_height"] or (top - 0.5 * d)
+        if self.pour:
+            self.H = silo["height"] or max(top + 2 * d, self.pour_y + 2.5 * d)
+        self.gap, self.jitter = silo["lattice_gap"], silo["lattice_jitter"]
+
+    def pour_layer(self, k: int, n: int) -> np.ndarray:
+        """Layer ``k`` of the pour: the first ``n`` sites of one lattice layer at y = pour_y
+        (jitter seeded with (seed, k))."""
+        clear = 0.5 * self.d * (1.0 + self.gap)
+        per = self.layer_size()
+        lay = fill_lattice(self.W, self.L, self.pour_y - clear, self.d, per, self.gap, self.jitter,
+                           np.random.SeedSequence([self.seed, k]).generate_state(1)[0])
+        return lay[:n]
+
+    def layer_size(self) -> int:
+        r = 0.5 * self.d
+        a = self.d * (1.0 + self.gap)
+        clear = r * (1.0 + self.gap)
+        nx = int(math.floor((self.W - 2 * clear) / a + 1e-9)) + 1
+        nz = int(math.floor((self.L - 2 * clear) / a + 1e-9)) + 1
+        return nx * nz
 
     @property
     def hopper(self) -> bool:
@@ -156,7 +184,9 @@ def check_silo_case(r: dict) -> None:
                 raise CaseError(f"silo.{grp}.{k}", f"{v:g} must be positive")
     if s["height"]:
         g = SiloGeometry(s, d, r["particles"]["seed"])
-        if s["height"] < g.lattice_top:
+        if s["fill"] == "pour" and s["height"] < g.pour_y + 0.5 * d:
+            raise CaseError("silo.height", f"{s['height']:g} m is below the pour height ({g.pour_y:.4g} m)")
+        if s["fill"] == "lattice" and s["height"] < g.lattice_top:
             raise CaseError("silo.height", f"{s['height']:g} m is below the top of the fill lattice "
                                            f"({g.lattice_top:.4g} m): raise it or set 0 (automatic)")
 
@@ -232,17 +262,45 @@ class SiloScene(Scene):
         cell = s["field_cell"] or 2 * self.g.d
         self.field = VelocityField(0.0, self.g.W, -self.g.lip, self.g.H, cell)
         self.k_field = 0
+        self.n_inserted = 0
+        self.layers_done = 0
+        d = self.g.d
+        self.m_p = self.case.particles.density * math.pi / 6.0 * d ** 3
+        self.pour_interval = self.g.layer_size() * self.m_p / s["pour_rate"] if self.g.pour else math.inf
 
     # ------------------------------------------------------------------ hooks
     def start(self) -> None:
         d = self.g.d
-        pos = self.g.lattice
-        self.sim.system.add_particles(pos, np.zeros(3), 0.5 * d, self.case.particles.density)
-        self.sim.log.info("silo: %d particles on a lattice up to y = %.4g m (side walls to %.4g m), gate %s",
-                          len(pos), self.g.lattice_top, self.g.H,
+        if self.g.pour:
+            self._pour(0.0)
+            what = (f"pour of {self.s['n_particles']} particles at {self.s['pour_rate']:g} kg/s (a layer of "
+                    f"{self.g.layer_size()} every {self.pour_interval:.4g} s) at y = {self.g.pour_y:.4g} m")
+        else:
+            pos = self.g.lattice
+            self.sim.system.add_particles(pos, np.zeros(3), 0.5 * d, self.case.particles.density)
+            self.n_inserted = len(pos)
+            what = f"{len(pos)} particles on a lattice up to y = {self.g.lattice_top:.4g} m"
+        self.sim.log.info("silo: %s (side walls to %.4g m), gate %s", what, self.g.H,
                           f"opens at {self.s['gate_time']:g} s" if self.s["gate"] == "time" else
                           f"opens when settled (kinetic energy per particle < {self.s['settle_energy']:g} J) "
                           f"from {self.s['gate_time']:g} s")
+
+    def _pour(self, t: float) -> None:
+        """Insert the pour layers that are due (each only if it overlaps nothing)."""
+        n = self.s["n_particles"]
+        sys_ = self.sim.system
+        half = 0.5 * self.sim.dt
+        while self.n_inserted < n and t >= self.layers_done * self.pour_interval - half:
+            lay = self.g.pour_layer(self.layers_done, min(self.g.layer_size(), n - self.n_inserted))
+            if sys_.n and sys_.overlaps(lay, 0.5 * self.g.d).any():
+                return  # wait: retried at the next check
+            sys_.add_particles(lay, np.zeros(3), 0.5 * self.g.d, self.case.particles.density)
+            self.n_inserted += len(lay)
+            self.layers_done += 1
+
+    @property
+    def pouring(self) -> bool:
+        return self.g.pour and self.n_inserted < self.s["n_particles"]
 
     @property
     def gate_open(self) -> bool:
@@ -250,6 +308,10 @@ class SiloScene(Scene):
 
     def next_time(self, t: float) -> float:
         nt = self.k_check * self.check_dt
+        if self.pouring:
+            due = self.layers_done * self.pour_interval
+            if due > t + 0.5 * self.sim.dt:  # (a layer that waits is retried at the next check)
+                nt = min(nt, due)
         if self.gate_open:
             nt = min(nt, self._next_field_time())
         return nt
@@ -262,6 +324,8 @@ class SiloScene(Scene):
         sys_ = sim.system
         t = sys_.time
         half = 0.5 * sim.dt
+        if self.pouring:
+            self._pour(t)
         if sys_.n:
             out = sys_.pos[:, 1] < -self.g.removal_depth
             if out.any():
@@ -282,7 +346,7 @@ class SiloScene(Scene):
             n = max(sys_.n, 1)
             ke = sys_.kinetic_energy() / n
             due = t >= self.s["gate_time"] - half
-            if due and (self.s["gate"] == "time" or ke < self.s["settle_energy"]):
+            if due and (self.s["gate"] == "time" or (ke < self.s["settle_energy"] and not self.pouring)):
                 self._open_gate(t, ke)
             return
         self.rec_t.append(t)
@@ -337,7 +401,7 @@ class SiloScene(Scene):
     def series(self) -> dict:
         c = self.sim.counters
         return {"discharged_mass": c["mass_out"], "discharged_count": float(c["count_out"]),
-                "gate_open": 1.0 if self.gate_open else 0.0}
+                "inserted_count": float(self.n_inserted), "gate_open": 1.0 if self.gate_open else 0.0}
 
     def stop_reason(self) -> str | None:
         if not self.ended:
@@ -399,6 +463,7 @@ class SiloScene(Scene):
                 "last_out_time": self.last_out_time, "rec_t": np.array(self.rec_t, float),
                 "rec_m": np.array(self.rec_m, float), "clogged": np.int64(self.clogged), "ended": self.ended,
                 "k_field": np.int64(self.k_field), "field": self.field.get_state(),
+                "n_inserted": np.int64(self.n_inserted), "layers_done": np.int64(self.layers_done),
                 "fill": {k: (np.asarray(v) if not isinstance(v, (int, float)) else v) for k, v in self.fill.items()}}
 
     def set_state(self, d: dict) -> None:
@@ -411,6 +476,8 @@ class SiloScene(Scene):
         e = d["ended"]
         self.ended = e.decode() if isinstance(e, bytes) else str(e)
         self.k_field = int(d["k_field"])
+        self.n_inserted = int(d["n_inserted"])
+        self.layers_done = int(d["layers_done"])
         self.field.set_state(d["field"])
         for k, v in d["fill"].items():
             self.fill[k] = np.asarray(v, float) if k.startswith("box") else float(v)

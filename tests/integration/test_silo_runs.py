@@ -129,3 +129,30 @@ def test_resume_after_the_gate_opened_is_bit_identical(write_case, tmp_path, one
     assert np.array_equal(ma["silo"]["discharge_mass"], mb["silo"]["discharge_mass"])
     assert np.array_equal(ma["silo"]["field"]["count"], mb["silo"]["field"]["count"])
     assert float(ma["bulk_density"]) == float(mb["bulk_density"])
+
+
+def test_pour_fill_respects_the_rate_and_conserves_particles(write_case, tmp_path, one_numba_thread):
+    # a layer of 14 every 0.038 s: slower than a layer falls its own spacing (0.029 s)
+    text = CASE.format(b=0.012, gate=0.9, end=0.95).replace('gate = "time"', 'gate = "time"\nfill = "pour"\n'
+                                                                            'pour_rate = 0.01')
+    d = write_case(text, name="pour")
+    case = load_case(d)
+    from cfddem.scenes.silo import SiloGeometry
+
+    g = SiloGeometry(case.resolved["silo"], 0.0038, case.particles.seed)
+    per = g.layer_size()
+    m_p = 950.0 * math.pi / 6 * 0.0038 ** 3
+    interval = per * m_p / 0.01
+    summary = Simulation(case, tmp_path / "pour_out", echo=False, progress=False).run()
+    assert summary.status == "done"
+    s = read_series(tmp_path / "pour_out" / "results.h5")
+    t, ins = s["time"], s["inserted_count"]
+    assert ins[-1] == 300 and ins[0] == per  # the first layer at t = 0
+    assert np.all(np.diff(ins) >= 0) and np.all((ins % per == 0) | (ins == 300))
+    # never faster than the rate: layer k enters at k * interval at the earliest
+    assert np.all(ins <= (np.floor(t / interval + 1e-9) + 1) * per)
+    # and not slower: no layer had to wait
+    full = t[np.argmax(ins == 300)]
+    assert full <= (300 // per) * interval + 0.011
+    np.testing.assert_array_equal(s["n_particles"] + s["discharged_count"], ins)
+    assert s["discharged_count"][-1] > 0
