@@ -186,3 +186,64 @@ def run_beverloo_from_args(args) -> int:
     study = run_beverloo_study(args.case, widths, args.out, common=args.overrides, scheduler=args.scheduler,
                                workers=args.workers, threads=args.threads)
     return 0 if study["fit"] is not None else 3
+
+
+def write_silo_plots(h5, out) -> list[Path]:
+    """Two PNGs of a finished silo run: ``silo_discharge.png`` (discharged mass against time,
+    the fitted line over its window) and ``silo_field.png`` (the time-averaged speed on the x-y
+    grid with velocity arrows and the flow-channel boundary)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .io.results import read_measurements
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    m = read_measurements(h5)
+    s = m["silo"]
+    files = []
+    fig, ax = plt.subplots(figsize=(6, 4))
+    t, mm = s["discharge_time"], s["discharge_mass"]
+    ax.plot(t, mm * 1e3, "-", label="discharged")
+    rate = float(m["mass_flow_rate"])
+    t_lo, t_hi, m_lo, m_hi = s["fit_window"]
+    if math.isfinite(rate):
+        sel = (t >= t_lo) & (t <= t_hi)
+        c = float(np.mean(mm[sel] - rate * t[sel]))
+        tt = np.array([t_lo, t_hi])
+        ax.plot(tt, (rate * tt + c) * 1e3, "--", lw=2, label=f"fit: {rate * 1e3:.1f} g/s")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("discharged mass (g)")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    files.append(out / "silo_discharge.png")
+    fig.savefig(files[-1], dpi=110)
+    plt.close(fig)
+    f = s["field"]
+    x, y, vx, vy = f["x"], f["y"], f["vx"], f["vy"]
+    speed = np.hypot(vx, vy)
+    fig, ax = plt.subplots(figsize=(4.5, 6))
+    ext = [x[0] - 0.5 * (x[1] - x[0]), x[-1] + 0.5 * (x[1] - x[0]), y[0] - 0.5 * (y[1] - y[0]),
+           y[-1] + 0.5 * (y[1] - y[0])]
+    im = ax.imshow(np.ma.masked_invalid(speed), origin="lower", extent=[e * 1e3 for e in ext], aspect="equal",
+                   cmap="viridis")
+    fig.colorbar(im, ax=ax, label="mean speed (m/s)", shrink=0.6)
+    X, Y = np.meshgrid(x, y)
+    ok = np.isfinite(vx)
+    ax.quiver(X[ok] * 1e3, Y[ok] * 1e3, vx[ok], vy[ok], color="w", scale=None, width=0.003)
+    ch = s["channel"]
+    ax.plot(ch["x_left"] * 1e3, ch["y"] * 1e3, "r-", lw=1.5, label=f"channel ({float(ch['fraction']):g} of centre)")
+    ax.plot(ch["x_right"] * 1e3, ch["y"] * 1e3, "r-", lw=1.5)
+    top = float(np.nanmax(np.where(f["count"] > 0, Y, np.nan))) if np.any(f["count"] > 0) else y[-1]
+    ax.set_ylim(ext[2] * 1e3, (top + (y[1] - y[0])) * 1e3)
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.legend(loc="upper right", fontsize=8)
+    fig.tight_layout()
+    files.append(out / "silo_field.png")
+    fig.savefig(files[-1], dpi=110)
+    plt.close(fig)
+    return files

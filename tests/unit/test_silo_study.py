@@ -63,3 +63,27 @@ def test_study_input_errors(root):
     with pytest.raises(CaseError) as e:
         run_beverloo_study(root / "cases" / "box_small", [0.02, 0.03])
     assert e.value.key == "geometry.type"
+
+
+def test_silo_plots_from_a_results_file(tmp_path):
+    from cfddem.io.results import ResultsFile
+    from cfddem.measure.silo import VelocityField, channel_boundary
+    from cfddem.silo_study import write_silo_plots
+
+    f = VelocityField(0.0, 0.06, 0.0, 0.04, 0.005)
+    rng = np.random.default_rng(2)
+    pos = np.column_stack([rng.uniform(0, 0.06, 500), rng.uniform(0, 0.04, 500), np.zeros(500)])
+    vel = np.column_stack([np.zeros(500), -np.exp(-((pos[:, 0] - 0.03) / 0.01) ** 2), np.zeros(500)])
+    f.sample(pos, vel)
+    vx, vy = f.mean()
+    ch = channel_boundary(vy, f.x, 0.03)
+    t = np.linspace(0, 1, 101)
+    with ResultsFile(tmp_path / "results.h5", mode="w") as res:
+        res.write_measurements(None, {
+            "mass_flow_rate": 0.02, "bulk_density": 550.0, "clogged": 0,
+            "silo": {"discharge_time": t, "discharge_mass": 0.02 * t, "fit_window": np.array([0.2, 0.8, 0.004, 0.016]),
+                     "field": {"x": f.x, "y": f.y, "vx": vx, "vy": vy, "count": f.count},
+                     "channel": {"y": f.y, "x_left": ch["x_left"], "x_right": ch["x_right"], "fraction": 0.1}}})
+    files = write_silo_plots(tmp_path / "results.h5", tmp_path / "plots")
+    assert [p.name for p in files] == ["silo_discharge.png", "silo_field.png"]
+    assert all(p.stat().st_size > 5000 for p in files)
