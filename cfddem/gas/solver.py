@@ -38,12 +38,14 @@ from cfddem.errors import CaseError
 from cfddem.gas.boundaries import BoundarySet
 from cfddem.gas.grid import Field, StaggeredGrid
 from cfddem.gas.momentum import momentum_rhs, viscous_laplacian
-from cfddem.gas.operators import porous_divergence_kernel
 from cfddem.gas.multigrid import MGPressureSolver
+from cfddem.gas.operators import porous_divergence_kernel
+from cfddem.gas.projection import correction_kernel, mass_defect_kernel, predictor_kernel, pressure_rhs_kernel
 from cfddem.gas.pressure import PressureSolver
 
 _LOC = ("fcc", "cfc", "ccf")
 _NAMES = ("u", "v", "w")
+_UNIT = ((1, 0, 0), (0, 1, 0), (0, 0, 1))
 
 
 @dataclass
@@ -59,12 +61,6 @@ class GasStepInfo:
     amg_rebuilt: bool = False
     compatibility: float = 0.0
     viscous_iterations: int = 0
-
-
-def _shift(sl: tuple, d: int, by: int) -> tuple:
-    s = list(sl)
-    s[d] = slice(s[d].start + by, s[d].stop + by)
-    return tuple(s)
 
 
 class GasSolver:
@@ -132,6 +128,21 @@ class GasSolver:
             self.psolver = PressureSolver(grid, self.bc.pressure_bc, tol=tol, maxiter=maxiter,
                                           rebuild_threshold=rebuild_threshold)
         self._phi = np.zeros(grid.shape)
+        # preallocated work arrays of the step (no temporaries in the time loop)
+        self._coef = [np.zeros(grid.interior_shape(loc)) for loc in _LOC]  # pressure coefficients a_f
+        self._ratio = [np.zeros(grid.interior_shape(loc)) for loc in _LOC]  # eps_f / (eps_f + dt K/rho)
+        self._zero_face = [np.zeros(grid.interior_shape(loc)) for loc in _LOC]  # S, K, U_p when not given
+        self._upd_slice = []
+        for c in range(3):
+            lo, hi = self.bc.face_range[c]
+            sl = list(grid.interior(_LOC[c]))
+            sl[c] = slice(grid.halo + lo, grid.halo + hi)
+            self._upd_slice.append(tuple(sl))
+        self._numer = [np.zeros(np.zeros(grid.array_shape(loc))[sl].shape) for loc, sl in zip(_LOC, self._upd_slice)]
+        self._den = [np.zeros_like(a) for a in self._numer]
+        self._div = np.zeros(grid.array_shape("ccc"))
+        self._b = np.zeros(grid.shape)
+        self._phif = np.zeros(grid.array_shape("ccc"))
         self._rhs = [np.zeros(grid.array_shape(loc)) for loc in _LOC]
         self._work = [np.zeros(grid.array_shape(loc)) for loc in _LOC]
         self._lout = [np.zeros(grid.array_shape(loc)) for loc in _LOC]
@@ -225,7 +236,6 @@ class GasSolver:
         if K is not None and Up is None:
             raise CaseError("gas.drag_Up", "needed with drag_K")
         eo, en = self._eps_prev, self.eps.data
-        self.bc.fill_scalar(en)
         self.fill_halos()
         vel = (self.u.data, self.v.data, self.w.data)
         # --- 1. predictor ---------------------------------------------------------------
@@ -234,49 +244,23 @@ class GasSolver:
             momentum_rhs(c, vel, eo, en, grid, nu=self.nu, lam_ratio=self.lam_ratio, scheme=self._scheme,
                          omega=self.omega, gravity=self.gravity, axis_point=self.axis_point,
                          face_range=(lo, hi), out=self._rhs[c])
-        coefs, ratios, new = [], [], []
+        implicit = self.viscosity == "implicit" and self.nu > 0
         viscous_iters = 0
+        zero = self._zero_face
         for c in range(3):
             lo, hi = self.bc.face_range[c]
-            h = grid.spacing[c]
-            full = list(grid.interior("fcc" if c == 0 else ("cfc" if c == 1 else "ccf")))
-            sl = list(full)
-            sl[c] = slice(g + lo, g + hi)
-            sl = tuple(sl)
-            # face porosity on all interior faces (for the pressure coefficients)
-            full = tuple(full)
-            ef_all = 0.5 * (en[_shift(full, c, -1)] + en[full])
-            if K is not None:
-                dk_all = dt * K[c] / rho
-            else:
-                dk_all = 0.0
-            denom_all = ef_all + dk_all
-            coefs.append(ef_all * ef_all / denom_all)
-            ratio_all = ef_all / denom_all
-            ratios.append(ratio_all)
-            isl = [slice(None)] * 3
-            isl[c] = slice(lo, hi)
-            isl = tuple(isl)
-            ef = ef_all[isl]
-            gradp = (self.p.data[sl] - self.p.data[_shift(sl, c, -1)]) / h
-            u0 = vel[c][sl]
-            numer = ef * u0 + dt * (self._rhs[c][sl] - ef * gradp / rho)
-            if S is not None:
-                numer += dt * S[c][isl] / rho
-            if K is not None:
-                numer += dt * K[c][isl] * Up[c][isl] / rho
-            den = denom_all[isl] if K is not None else ef
-            if self.viscosity == "implicit" and self.nu > 0:
-                val, it = self._implicit_viscous(c, sl, numer, den, eo, dt, (lo, hi))
+            predictor_kernel(vel[c], en, self.p.data, self._rhs[c], S[c] if S is not None else zero[c],
+                             K[c] if K is not None else zero[c], Up[c] if Up is not None else zero[c], dt, rho,
+                             1.0 / grid.spacing[c], g, *_UNIT[c], lo, hi, not implicit, self._coef[c], self._ratio[c],
+                             self._numer[c], self._den[c])
+            if implicit:
+                sl = self._upd_slice[c]
+                val, it = self._implicit_viscous(c, sl, self._numer[c], self._den[c], eo, dt, (lo, hi))
                 viscous_iters += it
-            else:
-                val = numer / den
-            new.append((sl, isl, val))
-        for c in range(3):
-            sl, isl, val = new[c]
-            vel[c][sl] = val
+                vel[c][sl] = val
         self.bc.fill_velocity(*vel)
         # --- 2. pressure increment --------------------------------------------------------
+        coefs = self._coef
         for c in range(3):
             if self.bc.periodic[c]:  # face n is face 0
                 s_n = [slice(None)] * 3
@@ -287,28 +271,26 @@ class GasSolver:
         self.psolver.set_coefficients(*coefs)
         nx, ny, nz = grid.shape
         dx, dy, dz = grid.spacing
-        div = np.zeros(grid.array_shape("ccc"))
+        div = self._div
         porous_divergence_kernel(vel[0], vel[1], vel[2], en, 1.0 / dx, 1.0 / dy, 1.0 / dz, g, nx, ny, nz, div)
-        ci = grid.interior("ccc")
-        deps = (en[ci] - eo[ci]) / dt
-        b = -(rho / dt) * (div[ci] + deps)
-        phi, sinfo = self.psolver.solve(b, x0=self._phi)
+        pressure_rhs_kernel(div, en, eo, dt, rho, g, self._b)
+        phi, sinfo = self.psolver.solve(self._b, x0=self._phi)
         self._phi = phi
         # --- 3. correction ----------------------------------------------------------------
-        phif = np.zeros(grid.array_shape("ccc"))
+        ci = grid.interior("ccc")
+        phif = self._phif
         phif[ci] = phi
         self.bc.fill_pressure(phif, homogeneous=True)
         for c in range(3):
-            sl, isl, _ = new[c]
-            h = grid.spacing[c]
-            vel[c][sl] -= (dt / rho) * ratios[c][isl] * (phif[sl] - phif[_shift(sl, c, -1)]) / h
+            lo, hi = self.bc.face_range[c]
+            correction_kernel(vel[c], phif, self._ratio[c], dt / (rho * grid.spacing[c]), g, *_UNIT[c], lo, hi)
         self.p.data[ci] += phi
         self.bc.fill_pressure(self.p.data)
         self.bc.fill_velocity(*vel)
         # --- diagnostics ------------------------------------------------------------------
         porous_divergence_kernel(vel[0], vel[1], vel[2], en, 1.0 / dx, 1.0 / dy, 1.0 / dz, g, nx, ny, nz, div)
-        self._last_div = float(np.max(np.abs(div[ci] + deps))) * dt
-        self._eps_prev = en.copy()
+        self._last_div = float(mass_defect_kernel(div, en, eo, dt, g, nx, ny, nz))
+        np.copyto(self._eps_prev, en)
         self.time += dt
         self.step_count += 1
         self._last_dt = dt
@@ -370,6 +352,8 @@ class GasSolver:
     def _first_nonfinite(self) -> str:
         for name, f in (("u", self.u), ("v", self.v), ("w", self.w), ("p", self.p)):
             a = f.interior
+            if np.isfinite(a.sum()):  # cheap test first (a finite sum has no NaN or inf terms)
+                continue
             if not np.all(np.isfinite(a)):
                 idx = tuple(int(i) for i in np.argwhere(~np.isfinite(a))[0])
                 pos = tuple(float(self.grid.coords(f.location, d, with_halo=False)[idx[d]]) for d in range(3))
@@ -380,8 +364,8 @@ class GasSolver:
     # --- time-step limits -------------------------------------------------------------
     def _advective_rate(self) -> float:
         dx, dy, dz = self.grid.spacing
-        return float(np.max(np.abs(self.u.interior)) / dx + np.max(np.abs(self.v.interior)) / dy
-                     + np.max(np.abs(self.w.interior)) / dz)
+        m = [max(f.interior.max(), -f.interior.min()) for f in (self.u, self.v, self.w)]  # max |.|, no temporaries
+        return float(m[0] / dx + m[1] / dy + m[2] / dz)
 
     def max_stable_dt(self) -> float:
         """Largest stable step of the explicit terms:

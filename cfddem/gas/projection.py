@@ -1,0 +1,94 @@
+"""Fused compiled kernels of the projection step (cfddem.gas.solver.GasSolver.step).
+
+One pass per velocity component replaces a dozen numpy temporaries (measured: the numpy
+version of predictor and correction cost ~4 ms per chute step, as much as the momentum
+kernels).  The formulas are those of :mod:`cfddem.gas.solver`; with eps_f the arithmetic
+face mean of the new cell porosity and ``dk = dt K / rho``:
+
+* predictor, on the faces the momentum equation updates::
+
+      u* = [eps_f u^n + dt (R - eps_f grad p^n / rho + S / rho + K U_p / rho)] / (eps_f + dk)
+
+* on every interior face: the pressure coefficient ``a_f = eps_f^2 / (eps_f + dk)`` and the
+  correction ratio ``eps_f / (eps_f + dk)``;
+* correction: ``u^{n+1} = u* - (dt/rho) ratio grad phi`` on the updated faces.
+
+The component's axis is given as a unit vector (di, dj, dk); loops follow the memory
+layout.  Arrays with halos carry ``g`` ghost layers; face arrays without halos (S, K, U_p,
+a_f, ratio) have n+1 faces along the component's axis.  Each face writes only its own
+entries: no races, thread-independent.
+"""
+
+from __future__ import annotations
+
+from cfddem._jit import kernel, parallel_kernel, prange
+
+
+@parallel_kernel
+def predictor_kernel(u, en, p, rhs, S, K, Up, dt, rho, rh, g, di, dj, dk, lo, hi, explicit, coef, ratio, numer, den):
+    """Fill coef and ratio on all faces of component (di, dj, dk) (the unit vector of its
+    axis); on the faces [lo, hi) along that axis either update u to u* (``explicit``) or store
+    the numerator and denominator of u* (semi-implicit viscosity, solved afterwards).
+    numer/den start at face lo.  Loops follow the memory layout (k fastest)."""
+    n0, n1, n2 = coef.shape
+    irho = 1.0 / rho
+    for i in prange(n0):
+        for j in range(n1):
+            for k in range(n2):
+                ia, ja, ka = g + i, g + j, g + k
+                ef = 0.5 * (en[ia - di, ja - dj, ka - dk] + en[ia, ja, ka])
+                d = ef + dt * K[i, j, k] * irho
+                coef[i, j, k] = ef * ef / d
+                ratio[i, j, k] = ef / d
+                f = i * di + j * dj + k * dk  # face index along the component's axis
+                if f >= lo and f < hi:
+                    gradp = (p[ia, ja, ka] - p[ia - di, ja - dj, ka - dk]) * rh
+                    num = ef * u[ia, ja, ka] + dt * (rhs[ia, ja, ka] - ef * gradp * irho)
+                    num += dt * S[i, j, k] * irho
+                    num += dt * K[i, j, k] * Up[i, j, k] * irho
+                    if explicit:
+                        u[ia, ja, ka] = num / d
+                    else:
+                        numer[i - lo * di, j - lo * dj, k - lo * dk] = num
+                        den[i - lo * di, j - lo * dj, k - lo * dk] = d
+
+
+@parallel_kernel
+def correction_kernel(u, phi, ratio, fac, g, di, dj, dk, lo, hi):
+    """u -= fac ratio (phi - phi_minus) on the faces [lo, hi) along the axis (di, dj, dk);
+    fac = dt / (rho h)."""
+    n0, n1, n2 = ratio.shape
+    i0, j0, k0 = lo * di, lo * dj, lo * dk
+    i1 = hi if di else n0
+    j1 = hi if dj else n1
+    k1 = hi if dk else n2
+    for i in prange(i0, i1):
+        for j in range(j0, j1):
+            for k in range(k0, k1):
+                ia, ja, ka = g + i, g + j, g + k
+                u[ia, ja, ka] -= fac * ratio[i, j, k] * (phi[ia, ja, ka] - phi[ia - di, ja - dj, ka - dk])
+
+
+@kernel
+def pressure_rhs_kernel(div, en, eo, dt, rho, g, b):
+    """Right-hand side of the pressure equation ``b = -(rho/dt) [div + (eps^{n+1} - eps^n)/dt]``
+    at the cells (b without halos); returns nothing."""
+    nx, ny, nz = b.shape
+    f = -rho / dt
+    for i in range(nx):
+        for j in range(ny):
+            for k in range(nz):
+                b[i, j, k] = f * (div[g + i, g + j, g + k] + (en[g + i, g + j, g + k] - eo[g + i, g + j, g + k]) / dt)
+
+
+@kernel
+def mass_defect_kernel(div, en, eo, dt, g, nx, ny, nz):
+    """max over cells of |div(eps_f u) + (eps^{n+1} - eps^n)/dt| * dt."""
+    m = 0.0
+    for i in range(nx):
+        for j in range(ny):
+            for k in range(nz):
+                v = abs(div[g + i, g + j, g + k] + (en[g + i, g + j, g + k] - eo[g + i, g + j, g + k]) / dt)
+                if v > m or v != v:  # a NaN is kept (nothing compares greater than it)
+                    m = v
+    return m * dt
