@@ -97,6 +97,7 @@ _SHEAR_SCHEMA = {
     "base_height": _pos(0.013, "m", "height of the base ring (y from 0; the shear plane is its top)"),
     "ring_height": _pos(0.016, "m", "height of the shear ring above the base ring"),
     "ring_offset": _nonneg(0.003, "m", "initial offset of the shear ring against the shear direction (-x)"),
+    "wall_thickness": _pos(0.003, "m", "ring wall thickness: the width of the ledges (ring faces) at the shear plane"),
     "normal_stress": _pos(4000.0, "Pa", "consolidation stress sigma on the lid: load sigma pi D^2 / 4"),
     "load_ramp_time": _nonneg(0.05, "s", "the lid load ramps linearly from 0 over this time"),
     "shear_speed": _pos(0.003, "m/s", "speed of the shear ring and lid"),

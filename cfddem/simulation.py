@@ -506,6 +506,10 @@ class Simulation:
             crossed = (h_old >= 0.0) & (h_now < -r)
             if w.kind == "cylinder":
                 crossed &= inside_ends
+            if w.kind == "annulus" and crossed.any():
+                for q, hq in ((cur, h_now), (old, h_old)):
+                    rq = np.linalg.norm(q - p0 - np.outer(hq, n), axis=1)
+                    crossed &= (rq >= w.half_extents[0]) & (rq <= w.half_extents[1])
             if w.kind == "rectangle" and crossed.any():
                 a1 = w.u_axis - np.dot(w.u_axis, n) * n
                 a1 /= np.linalg.norm(a1)
@@ -654,11 +658,14 @@ def contact_law(params: dict, model: str | None = None):
 def engine_wall(w, model: str | None = None):
     """The engine's wall object for a :class:`~cfddem.scene.WallSpec` (``model``: see
     :func:`contact_law`)."""
-    from .particles.walls import CylinderWall, PlaneWall, RectangleWall
+    from .particles.walls import AnnulusWall, CylinderWall, PlaneWall, RectangleWall
 
     law = contact_law(w.params, model)
     if w.kind == "plane":
         return PlaneWall(contact=law, name=w.name, point=tuple(w.point), normal=tuple(w.normal))
+    if w.kind == "annulus":  # half_extents = (inner radius, outer radius)
+        return AnnulusWall(contact=law, name=w.name, point=tuple(w.point), normal=tuple(w.normal),
+                           r_in=w.half_extents[0], r_out=w.half_extents[1])
     if w.kind == "cylinder":
         return CylinderWall(contact=law, name=w.name, point=tuple(w.point), axis=tuple(w.normal),
                             radius=w.half_extents[0], half_height=w.half_extents[1], inside=w.inside)
@@ -703,7 +710,7 @@ def rayleigh_time(case: Case) -> float:
 def has_particles(case: Case) -> bool:
     """Whether the case can hold particles at all (an inlet or initial particles)."""
     return case.inlet.type != "none" or bool(case.particles.initial) or bool(case.particles.initial_file) \
-        or case.geometry.type == "silo"
+        or case.geometry.type in ("silo", "shear_cell")
 
 
 def check_time_step(case: Case, log=None) -> float:
@@ -742,6 +749,8 @@ def expected_particles(case: Case) -> int:
     n = len(case.particles.initial)
     if case.geometry.type == "silo":
         n += case.silo.n_particles
+    if case.geometry.type == "shear_cell":  # fill (up to 4 spheres per clump) + lid
+        n += 4 * case.shear.n_particles + 1000
     if case.particles.initial_file:
         try:
             n += len(initial_particles(case)["pos"]) - len(case.particles.initial)

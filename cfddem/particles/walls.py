@@ -30,6 +30,11 @@ sphere can only touch the rim circle: q = p + sign(s) h2 n + R_c (x - p - s n)/r
 (x - q)/|x - q|, overlap r - |x - q| (continuous with the face at |s| = h2).  Centres outside the
 ring (rho > R_c) or exactly on the axis (no defined normal; only possible with r > R_c) get no
 contact.  The outside surface mirrors this (rho > R_c, normal radially outwards).
+
+Annulus (kind 3; the top face of a ring's wall, e.g. the ledges of a shear cell): the plane
+through p with normal n, restricted to inner radius h1 <= rho <= outer radius h2 about p.
+Over the face it is the plane contact; otherwise the nearest point q lies on the inner or outer
+rim circle, normal (x - q)/|x - q|, overlap R - |x - q|, for centres on the +n side only.
 """
 
 from __future__ import annotations
@@ -47,6 +52,7 @@ WALL_NGEOM = 20
 KIND_PLANE = 0
 KIND_RECT = 1
 KIND_CYLINDER = 2
+KIND_ANNULUS = 3
 KIND_OFF = -1.0
 
 
@@ -150,6 +156,29 @@ class CylinderWall(Wall):
         return g
 
 
+@dataclass
+class AnnulusWall(Wall):
+    """One-sided flat ring (kind 3): centre ``point``, ``normal`` (towards the particles), radii
+    ``r_in`` < ``r_out`` (module docstring).  The shear cell's ledges (the rings' wall faces)."""
+
+    point: tuple = (0.0, 0.0, 0.0)
+    normal: tuple = (0.0, 1.0, 0.0)
+    r_in: float = 0.5
+    r_out: float = 1.0
+
+    def geometry(self) -> np.ndarray:
+        if not (0.0 <= self.r_in < self.r_out and math.isfinite(self.r_out)):
+            raise CaseError("wall.radius", f"annulus needs 0 <= r_in < r_out, got {self.r_in}, {self.r_out}")
+        g = np.zeros(WALL_NGEOM)
+        g[0] = KIND_ANNULUS
+        g[1:4] = np.asarray(self.point, float)
+        g[4:7] = _unit("wall.normal", self.normal)
+        g[13] = self.r_in
+        g[14] = self.r_out
+        g[16:19] = np.asarray(self.velocity, float)
+        return g
+
+
 def pack_walls(walls: list[Wall]):
     """(geometry rows (nw, WALL_NGEOM), reference points (nw, 3), contact rows (nw, NPARAM))."""
     nw = len(walls)
@@ -203,6 +232,29 @@ def wall_contact_s(kind, g1, g2, g3, g4, g5, g6, g7, g8, g9, g10, g11, g12, g13,
         qx = g1 + se * nx + g13 * ux
         qy = g2 + se * ny + g13 * uy
         qz = g3 + se * nz + g13 * uz
+        dx = x - qx
+        dy = y - qy
+        dz = z - qz
+        d = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if d >= r or d == 0.0:
+            return -1.0, nx, ny, nz, 0.0, 0.0, 0.0
+        return r - d, dx / d, dy / d, dz / d, qx, qy, qz
+    if kind == 3.0:
+        # annulus: plane face for g13 <= rho <= g14, else the nearer rim circle (+n side only)
+        if h >= r or h <= -r:
+            return -1.0, nx, ny, nz, 0.0, 0.0, 0.0
+        ex = px - h * nx
+        ey = py - h * ny
+        ez = pz - h * nz
+        rho = math.sqrt(ex * ex + ey * ey + ez * ez)
+        if rho >= g13 and rho <= g14:
+            return r - h, nx, ny, nz, x - h * nx, y - h * ny, z - h * nz
+        if h < 0.0 or rho == 0.0:
+            return -1.0, nx, ny, nz, 0.0, 0.0, 0.0
+        rc = g13 if rho < g13 else g14
+        qx = g1 + rc * ex / rho
+        qy = g2 + rc * ey / rho
+        qz = g3 + rc * ez / rho
         dx = x - qx
         dy = y - qy
         dz = z - qz

@@ -30,6 +30,7 @@ import math
 
 SCENES: dict[str, str] = {
     "silo": "cfddem.scenes.silo:SiloScene",
+    "shear_cell": "cfddem.scenes.shear:ShearCellScene",
 }
 
 
