@@ -413,12 +413,12 @@ class ShearCellScene(Scene):
                              tuple(self.s["steady_window"]))
 
     def load_error(self) -> float:
-        """Relative error of the time-averaged vertical force of the particles on the lid against
-        the target, over the checks after the ramp (consolidation and shear)."""
+        """Relative error of the time-averaged vertical force of the particles on the lid (mean
+        over the checks, every ``check_steps`` steps) against the target, during the shear."""
         if not self.load_log:
             return math.nan
         a = np.array(self.load_log)
-        sel = a[:, 0] >= self.t_load + self.s["load_ramp_time"]
+        sel = (a[:, 3] > 0.5) & (a[:, 0] >= self.t_load + self.s["load_ramp_time"])
         if not sel.any():
             return math.nan
         return float(a[sel, 1].mean() / a[sel, 2].mean() - 1.0)
