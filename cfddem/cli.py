@@ -72,6 +72,10 @@ def _parser() -> argparse.ArgumentParser:
 
     add_beverloo_parser(sub)
 
+    from .calibrate import add_calibrate_parser
+
+    add_calibrate_parser(sub)
+
     rep = sub.add_parser("report", help="(re)write the PNG plots of a finished run")
     rep.add_argument("out", help="a run folder (holding results.h5)")
     return p
@@ -168,6 +172,10 @@ def _dispatch(args) -> int:
         from .silo_study import run_beverloo_from_args
 
         return run_beverloo_from_args(args)
+    if args.command == "calibrate":
+        from .calibrate import run_calibrate_from_args
+
+        return run_calibrate_from_args(args)
     if args.command == "report":
         from pathlib import Path
 
