@@ -1,34 +1,49 @@
-"""Time one gas step (cfddem.gas.GasSolver) on the chute grid and on 64^3 cells.
+"""Time one gas step (cfddem.gas.GasSolver) with the multigrid ("mg") and the pyamg ("amg")
+pressure solvers, on the chute grid and on 64^3 cells, in one command.
 
 Chute grid: 16 x 15 x 150 cells over 0.08 x 0.045 x 0.9 m, inclined 30 deg, rotating at
 16 rpm about the vertical axis, no-slip floor and side walls, lid cross-wind on the open
-top, co-flow inlet, pressure outlet; porosity from a random packed-bed-like field
-(eps ~ 0.4 in a bed of varying depth with noise, rising to 1 above it), slowly moving so
-that d(eps)/dt != 0 and the AMG hierarchy is reused/rebuilt as in a coupled run; implicit
-drag K on, as the coupling will use it.  Compile time is excluded (warm-up steps).
+top, co-flow inlet, pressure outlet.  Two porosity fields:
 
-Usage: python benchmarks/gas_step.py [--steps 30] [--threads N] [--tol 1e-8]
-Prints time per step (total, momentum+projection bookkeeping, pressure solve), pressure
-iterations per step, and cost per cell for the two grids.
+* ``eps=1``: particle-free (no drag);
+* ``bed``: a bed 1 cm deep of eps 0.45 along the floor under free air, with a +-0.03 noise
+  that changes every step (particles moving), and the implicit drag of that bed
+  (Ergun: K = 150 mu (1-eps)^2 / (eps^2 d^2), d = 2 mm; dt K/rho ~ 0.8 in the bed).
+
+64^3: a unit box, walls and lid cross-wind, periodic along z, a moving bed-like porosity
+with noise and drag K = 30 everywhere.
+
+Compile time and the first AMG set-up are excluded (warm-up steps).  Each (grid, solver)
+pair is timed ``--repeats`` times, alternating mg and amg so that both see the same machine
+load; the output gives the range over the repeats of the mean time per step, wall clock and
+CPU time of this thread (numba runs on one thread here, so the CPU time does not count the
+time the process waited for the shared cores), split into predictor (momentum right-hand
+side and predictor kernels), pressure (coefficient set-up and solve) and rest, plus pressure
+iterations, the mass-balance defect and the amg/mg ratio.
+
+Usage: python benchmarks/gas_step.py [--steps 20] [--repeats 3] [--tol 1e-8] [--no-cube]
+       python benchmarks/gas_step.py --tol-sweep      (mg iterations and defect against tol)
 """
 
 from __future__ import annotations
 
-import argparse
-import time
+import os
 
-import numpy as np
+# One BLAS thread: pyamg's coarsest-level solve goes through OpenBLAS, whose threads spin on
+# the shared 2-core machines and made the AMG solve 7x slower (measured: 310 against 38 ms per
+# chute step).  Set before numpy is imported; an explicit setting in the environment wins.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-from cfddem._jit import set_threads
-from cfddem.gas import GasSolver, Inlet, LidCrossWind, NoSlip, Periodic, PressureOutlet, StaggeredGrid
+import argparse  # noqa: E402
+import time  # noqa: E402
 
+import numpy as np  # noqa: E402
 
-def bed_porosity(g, t, rng_field):
-    X, Y, Z = g.mesh("ccc")
-    H = g.lengths[1]
-    depth = 0.4 * H * (1.0 + 0.3 * np.sin(2 * np.pi * (Z / g.lengths[2] - 2.0 * t)))
-    solid = 0.6 / (1.0 + np.exp((Y - depth) / (0.05 * H)))
-    return np.clip(1.0 - solid + 0.08 * rng_field, 0.4, 1.0)
+import cfddem.gas.solver as solver_mod  # noqa: E402
+from cfddem._jit import set_threads  # noqa: E402
+from cfddem.gas import GasSolver, Inlet, LidCrossWind, NoSlip, Periodic, PressureOutlet, StaggeredGrid  # noqa: E402
+
+RHO, MU = 1.2, 1.8e-5
 
 
 def chute_solver(shape=(16, 15, 150), lengths=(0.08, 0.045, 0.9), tol=1e-8, solver="mg"):
@@ -39,80 +54,177 @@ def chute_solver(shape=(16, 15, 150), lengths=(0.08, 0.045, 0.9), tol=1e-8, solv
     gvec = tuple(-9.81 * up)
     g = StaggeredGrid(shape, lengths)
     bcs = {"x-": NoSlip(), "x+": NoSlip(), "y-": NoSlip(), "y+": LidCrossWind(omega=omega, axis_point=axis),
-           "z-": Inlet(speed=1.0), "z+": PressureOutlet(p=lambda x, y, z: 1.2 * (gvec[1] * y + gvec[2] * z))}
-    return g, GasSolver(g, rho=1.2, mu=1.8e-5, bcs=bcs, gravity=gvec, omega=omega, axis_point=axis, tol=tol,
+           "z-": Inlet(speed=1.0), "z+": PressureOutlet(p=lambda x, y, z: RHO * (gvec[1] * y + gvec[2] * z))}
+    return g, GasSolver(g, rho=RHO, mu=MU, bcs=bcs, gravity=gvec, omega=omega, axis_point=axis, tol=tol,
                         pressure_solver=solver)
 
 
-def cube_solver(n=64, tol=1e-8):
+def cube_solver(n=64, tol=1e-8, solver="mg"):
     g = StaggeredGrid((n, n, n), (1.0, 1.0, 1.0))
     bcs = {"x-": NoSlip(), "x+": NoSlip(), "y-": NoSlip(), "y+": LidCrossWind(omega=(0, 1.7, 0), axis_point=(0.5, 0, 0.5)),
            "z-": Periodic(), "z+": Periodic()}
-    return g, GasSolver(g, rho=1.2, mu=1.8e-5, bcs=bcs, gravity=(0, -9.81, 0), omega=(0, 1.7, 0),
-                        axis_point=(0.5, 0, 0.5), tol=tol)
+    return g, GasSolver(g, rho=RHO, mu=MU, bcs=bcs, gravity=(0, -9.81, 0), omega=(0, 1.7, 0),
+                        axis_point=(0.5, 0, 0.5), tol=tol, pressure_solver=solver)
 
 
-def bench(name, g, s, steps, dt):
-    rng = np.random.default_rng(1)
+def face_mean(g, cell):
+    """Cell field -> the three interior face arrays (arithmetic mean, boundary faces copied)."""
+    out = []
+    for d in range(3):
+        e = np.concatenate([np.take(cell, [0], axis=d), cell, np.take(cell, [-1], axis=d)], axis=d)
+        n = e.shape[d]
+        out.append(0.5 * (np.take(e, range(n - 1), axis=d) + np.take(e, range(1, n), axis=d)))
+    return out
+
+
+def chute_fields(g, kind, nsteps, seed=1):
+    """Porosity per step and drag (K, U_p) for the chute grid; kind "eps1" or "bed"."""
+    if kind == "eps1":
+        return [np.ones(g.shape)] * nsteps, None, None
+    rng = np.random.default_rng(seed)
+    X, Y, Z = g.mesh("ccc")
+    bed = Y < 0.01
+    eps = [np.where(bed, 0.45 + 0.03 * rng.uniform(-1, 1, g.shape), 1.0) for _ in range(nsteps)]
+    ef = face_mean(g, np.where(bed, 0.45, 1.0))
+    d = 2e-3
+    K = tuple(150 * MU * (1 - e) ** 2 / (e**2 * d**2) for e in ef)
+    Up = (np.zeros_like(K[0]), np.zeros_like(K[1]), np.full(K[2].shape, 0.5))
+    return eps, K, Up
+
+
+def cube_fields(g, nsteps, dt, seed=1):
+    rng = np.random.default_rng(seed)
     noise = rng.uniform(-1.0, 1.0, g.shape)
+    X, Y, Z = g.mesh("ccc")
+    H = g.lengths[1]
+    eps = []
+    for i in range(nsteps):
+        depth = 0.4 * H * (1.0 + 0.3 * np.sin(2 * np.pi * (Z / g.lengths[2] - 2.0 * i * dt)))
+        solid = 0.6 / (1.0 + np.exp((Y - depth) / (0.05 * H)))
+        eps.append(np.clip(1.0 - solid + 0.08 * noise, 0.4, 1.0))
     shapes = [g.interior_shape(loc) for loc in ("fcc", "cfc", "ccf")]
     K = tuple(np.full(sh, 30.0) for sh in shapes)
     Up = (np.zeros(shapes[0]), np.zeros(shapes[1]), np.full(shapes[2], 1.0))
-    s.set_porosity(bed_porosity(g, 0.0, noise))
-    for i in range(3):  # warm-up: compilation and first AMG build
-        s.set_porosity(bed_porosity(g, (i + 1) * dt, noise))
+    return eps, K, Up
+
+
+class Timers:
+    """Wall and thread-CPU time spent in the wrapped callables."""
+
+    def __init__(self):
+        self.t = {"predictor": [0.0, 0.0], "pressure": [0.0, 0.0]}
+
+    def wrap(self, key, fn):
+        acc = self.t[key]
+
+        def timed(*a, **k):
+            w0, c0 = time.perf_counter(), time.thread_time()
+            out = fn(*a, **k)
+            acc[0] += time.perf_counter() - w0
+            acc[1] += time.thread_time() - c0
+            return out
+
+        return timed
+
+
+def run(make, fields, steps, dt, warm=3):
+    """Steps of one solver; returns a dict of per-step means (ms) and diagnostics."""
+    g, s = make()
+    eps, K, Up = fields
+    s.set_porosity(eps[0])
+    for i in range(warm):  # compilation, AMG set-up
+        s.set_porosity(eps[1 + i])
         s.step(dt, drag_K=K, drag_Up=Up)
-    t_solve = 0.0
-    iters = []
-    rebuilds0 = s.psolver.n_rebuilds
-    orig_solve = s.psolver.solve
+    tm = Timers()
+    ps = s.psolver
+    orig = (solver_mod.momentum_rhs, solver_mod.predictor_kernel, ps.set_coefficients, ps.solve)
+    solver_mod.momentum_rhs = tm.wrap("predictor", orig[0])
+    solver_mod.predictor_kernel = tm.wrap("predictor", orig[1])
+    ps.set_coefficients = tm.wrap("pressure", orig[2])
+    ps.solve = tm.wrap("pressure", orig[3])
+    its, defects = [], []
+    try:
+        w0, c0 = time.perf_counter(), time.thread_time()
+        for i in range(steps):
+            s.set_porosity(eps[1 + warm + i])
+            info = s.step(dt, drag_K=K, drag_Up=Up)
+            if not info.ok:
+                raise SystemExit(info.message)
+            its.append(info.pressure_iterations)
+            defects.append(info.max_divergence)
+        wall, cpu = time.perf_counter() - w0, time.thread_time() - c0
+    finally:
+        solver_mod.momentum_rhs, solver_mod.predictor_kernel = orig[0], orig[1]
+        ps.set_coefficients, ps.solve = orig[2], orig[3]
+    f = 1e3 / steps
+    tp, tq = tm.t["predictor"], tm.t["pressure"]
+    return dict(wall=wall * f, cpu=cpu * f, pred=tp[1] * f, pres=tq[1] * f, rest=(cpu - tp[1] - tq[1]) * f,
+                its=float(np.mean(its)), maxits=int(np.max(its)), defect=float(np.max(defects)), cells=g.ncells)
 
-    def timed_solve(*a, **k):
-        nonlocal t_solve
-        t0 = time.perf_counter()
-        out = orig_solve(*a, **k)
-        t_solve += time.perf_counter() - t0
-        return out
 
-    s.psolver.solve = timed_solve
-    t0 = time.perf_counter()
-    for i in range(steps):
-        s.set_porosity(bed_porosity(g, (i + 4) * dt, noise))
-        info = s.step(dt, drag_K=K, drag_Up=Up)
-        if not info.ok:
-            raise SystemExit(f"{name}: {info.message}")
-        iters.append(info.pressure_iterations)
-    total = (time.perf_counter() - t0) / steps
-    s.psolver.solve = orig_solve
-    n = g.ncells
-    res = dict(name=name, cells=n, ms_step=1e3 * total, ms_pressure=1e3 * t_solve / steps,
-               ms_rest=1e3 * (total - t_solve / steps), iters=float(np.mean(iters)), max_iters=int(np.max(iters)),
-               rebuilds=s.psolver.n_rebuilds - rebuilds0, us_per_cell=1e6 * total / n,
-               div=s.divergence_residual(), cfl=info.cfl)
-    print(f"{name:>12s}: {n:7d} cells  {res['ms_step']:8.2f} ms/step  (pressure solve {res['ms_pressure']:7.2f} ms, "
-          f"rest {res['ms_rest']:6.2f} ms)  pressure iterations {res['iters']:.1f} (max {res['max_iters']}), "
-          f"AMG rebuilds {res['rebuilds']}/{steps}, {res['us_per_cell']:.3f} us/cell, "
-          f"div residual {res['div']:.1e}, CFL {res['cfl']:.2f}")
+def fmt_range(vals, w=6, p=1):
+    lo, hi = min(vals), max(vals)
+    return f"{lo:{w}.{p}f}" if hi - lo < 0.05 * max(abs(hi), 1e-12) else f"{lo:.{p}f}-{hi:.{p}f}".rjust(w)
+
+
+def bench_pair(name, make, fields, steps, dt, repeats):
+    res = {"mg": [], "amg": []}
+    for _ in range(repeats):
+        for solver in ("mg", "amg"):
+            res[solver].append(run(lambda: make(solver), fields, steps, dt))
+    for solver in ("mg", "amg"):
+        r = res[solver]
+        print(f"{name:>14s} {solver:>4s}: wall {fmt_range([x['wall'] for x in r], 12)} ms/step, "
+              f"CPU {fmt_range([x['cpu'] for x in r], 12)} ms (predictor {fmt_range([x['pred'] for x in r])}, "
+              f"pressure {fmt_range([x['pres'] for x in r])}, rest {fmt_range([x['rest'] for x in r])}); "
+              f"pressure iterations {r[0]['its']:.1f} (max {r[0]['maxits']}), mass defect {r[0]['defect']:.1e}")
+    ratio_cpu = [a["cpu"] / m["cpu"] for a, m in zip(res["amg"], res["mg"])]
+    ratio_p = [a["pres"] / m["pres"] for a, m in zip(res["amg"], res["mg"])]
+    print(f"{name:>14s} amg/mg: step (CPU) x{fmt_range(ratio_cpu, 4)}, pressure x{fmt_range(ratio_p, 4)}")
     return res
+
+
+def tol_sweep(steps):
+    """mg on the chute bed: iterations and mass-balance defect against the pressure tolerance."""
+    dt = 1e-3
+    for tol in (1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-10):
+        g, _ = chute_solver()
+        fields = chute_fields(g, "bed", steps + 4)
+        r = run(lambda: chute_solver(tol=tol), fields, steps, dt)
+        print(f"tol {tol:7.0e}: pressure iterations {r['its']:5.1f} (max {r['maxits']:2d}), "
+              f"max mass-balance defect per step {r['defect']:.1e}, CPU {r['cpu']:.1f} ms/step")
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--steps", type=int, default=30)
-    ap.add_argument("--threads", type=int, default=0, help="numba threads (0: all)")
+    ap.add_argument("--steps", type=int, default=20)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--threads", type=int, default=1, help="numba threads (0: all)")
     ap.add_argument("--tol", type=float, default=1e-8)
     ap.add_argument("--no-cube", action="store_true", help="skip the 64^3 grid")
+    ap.add_argument("--tol-sweep", action="store_true", help="only the tolerance sweep (mg, chute bed)")
     a = ap.parse_args(argv)
     nt = set_threads(a.threads)
-    print(f"numba threads: {nt}, pressure tolerance {a.tol:g}")
-    g, s = chute_solver(tol=a.tol)
-    r1 = bench("chute", g, s, a.steps, 1e-3)
+    print(f"numba threads: {nt}, pressure tolerance {a.tol:g}, {a.steps} steps x {a.repeats} repeats; "
+          f"times: range over the repeats")
+    if a.tol_sweep:
+        tol_sweep(a.steps)
+        return
+    dt = 1e-3
+    g, _ = chute_solver()
+    n = a.steps + 4
+    out = {}
+    for kind in ("eps1", "bed"):
+        out[kind] = bench_pair(f"chute {kind}", lambda sv: chute_solver(tol=a.tol, solver=sv),
+                               chute_fields(g, kind, n), a.steps, dt, a.repeats)
     if not a.no_cube:
-        g, s = cube_solver(tol=a.tol)
-        r2 = bench("64^3", g, s, max(5, a.steps // 3), 2e-3)
-        ratio = r2["ms_step"] / r1["ms_step"]
-        print(f"cost growth: cells x{r2['cells'] / r1['cells']:.1f} -> time x{ratio:.1f} "
-              f"(per cell x{r2['us_per_cell'] / r1['us_per_cell']:.2f})")
+        gc, _ = cube_solver()
+        cs = max(3, a.steps // 4)
+        out["cube"] = bench_pair("64^3", lambda sv: cube_solver(tol=a.tol, solver=sv),
+                                 cube_fields(gc, cs + 4, 2e-3), cs, 2e-3, max(1, a.repeats - 1))
+        for sv in ("mg", "amg"):
+            c = min(x["cpu"] for x in out["cube"][sv]) / min(x["cpu"] for x in out["bed"][sv])
+            print(f"cost growth {sv}: cells x{gc.ncells / g.ncells:.1f} -> CPU time x{c:.1f}")
 
 
 if __name__ == "__main__":

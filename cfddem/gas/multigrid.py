@@ -72,7 +72,7 @@ SIDES = ("x-", "x+", "y-", "y+", "z-", "z+")
 # ------------------------------------------------------------------------------------------
 @kernel
 def _fine_coefficients(ax, ay, az, sc, dirich, periodic, cE, cN, cT, dX, dY, dZ):
-    """Level-0 weights (volume-scaled): cE[c] couples c to its +x neighbour (wrapping), zero
+    """Level-0 weights (volume-scaled): cE[U(c)] couples c to its +x neighbour (wrapping), zero
     at non-periodic +x sides; dX: Dirichlet boundary terms.  sc[d] = V / h_d^2."""
     nx, ny, nz = ax.shape[0] - 1, ay.shape[1] - 1, az.shape[2] - 1
     for i in range(nx):
@@ -83,35 +83,35 @@ def _fine_coefficients(ax, ay, az, sc, dirich, periodic, cE, cN, cT, dX, dY, dZ)
                 w = ax[i + 1, j, k] * sc[0]
                 if i == nx - 1 and (periodic[0] == 0 or nx == 1):
                     w = 0.0
-                cE[c] = w
+                cE[U(c)] = w
                 d = 0.0
                 if i == 0 and dirich[0] == 1:
                     d += 2.0 * ax[0, j, k] * sc[0]
                 if i == nx - 1 and dirich[1] == 1:
                     d += 2.0 * ax[nx, j, k] * sc[0]
-                dX[c] = d
+                dX[U(c)] = d
                 # y
                 w = ay[i, j + 1, k] * sc[1]
                 if j == ny - 1 and (periodic[1] == 0 or ny == 1):
                     w = 0.0
-                cN[c] = w
+                cN[U(c)] = w
                 d = 0.0
                 if j == 0 and dirich[2] == 1:
                     d += 2.0 * ay[i, 0, k] * sc[1]
                 if j == ny - 1 and dirich[3] == 1:
                     d += 2.0 * ay[i, ny, k] * sc[1]
-                dY[c] = d
+                dY[U(c)] = d
                 # z
                 w = az[i, j, k + 1] * sc[2]
                 if k == nz - 1 and (periodic[2] == 0 or nz == 1):
                     w = 0.0
-                cT[c] = w
+                cT[U(c)] = w
                 d = 0.0
                 if k == 0 and dirich[4] == 1:
                     d += 2.0 * az[i, j, 0] * sc[2]
                 if k == nz - 1 and dirich[5] == 1:
                     d += 2.0 * az[i, j, nz] * sc[2]
-                dZ[c] = d
+                dZ[U(c)] = d
 
 
 @kernel
@@ -124,34 +124,34 @@ def _coarsen_and_factor(LV, AOFF, AXI, AXF, cE, cN, cT, dX, dY, dZ, dg, idg, den
         nx, ny, nz, off = LV[l, 0], LV[l, 1], LV[l, 2], LV[l, 3]
         mx, my, mz, offc = LV[l + 1, 0], LV[l + 1, 1], LV[l + 1, 2], LV[l + 1, 3]
         for c in range(offc, offc + mx * my * mz):
-            cE[c] = 0.0
-            cN[c] = 0.0
-            cT[c] = 0.0
-            dX[c] = 0.0
-            dY[c] = 0.0
-            dZ[c] = 0.0
+            cE[U(c)] = 0.0
+            cN[U(c)] = 0.0
+            cT[U(c)] = 0.0
+            dX[U(c)] = 0.0
+            dY[U(c)] = 0.0
+            dZ[U(c)] = 0.0
         ox, oy, oz = AOFF[l, 0], AOFF[l, 1], AOFF[l, 2]
         for i in range(nx):
-            I = AXI[0, 0, ox + i]
-            fx = AXF[0, 0, ox + i]
-            gx = AXF[1, 0, ox + i]
+            I = AXI[0, 0, U(ox + i)]
+            fx = AXF[0, 0, U(ox + i)]
+            gx = AXF[1, 0, U(ox + i)]
             for j in range(ny):
-                J = AXI[0, 1, oy + j]
-                fy = AXF[0, 1, oy + j]
-                gy = AXF[1, 1, oy + j]
+                J = AXI[0, 1, U(oy + j)]
+                fy = AXF[0, 1, U(oy + j)]
+                gy = AXF[1, 1, U(oy + j)]
                 for k in range(nz):
-                    K = AXI[0, 2, oz + k]
-                    fz = AXF[0, 2, oz + k]
-                    gz = AXF[1, 2, oz + k]
+                    K = AXI[0, 2, U(oz + k)]
+                    fz = AXF[0, 2, U(oz + k)]
+                    gz = AXF[1, 2, U(oz + k)]
                     c = off + (i * ny + j) * nz + k
                     C = offc + (I * my + J) * mz + K
                     # fx is nonzero only on the last fine child of I (the coarse +x face)
-                    cE[C] += fx * cE[c]
-                    cN[C] += fy * cN[c]
-                    cT[C] += fz * cT[c]
-                    dX[C] += gx * dX[c]
-                    dY[C] += gy * dY[c]
-                    dZ[C] += gz * dZ[c]
+                    cE[U(C)] += fx * cE[U(c)]
+                    cN[U(C)] += fy * cN[U(c)]
+                    cT[U(C)] += fz * cT[U(c)]
+                    dX[U(C)] += gx * dX[U(c)]
+                    dY[U(C)] += gy * dY[U(c)]
+                    dZ[U(C)] += gz * dZ[U(c)]
     for l in range(L):
         nx, ny, nz, off = LV[l, 0], LV[l, 1], LV[l, 2], LV[l, 3]
         for i in range(nx):
@@ -161,9 +161,9 @@ def _coarsen_and_factor(LV, AOFF, AXI, AXF, cE, cN, cT, dX, dY, dZ, dg, idg, den
                 for k in range(nz):
                     km = k - 1 if k > 0 else nz - 1
                     c = off + (i * ny + j) * nz + k
-                    dg[c] = (cE[c] + cE[off + (im * ny + j) * nz + k] + cN[c] + cN[off + (i * ny + jm) * nz + k]
-                             + cT[c] + cT[off + (i * ny + j) * nz + km] + dX[c] + dY[c] + dZ[c])
-                    idg[c] = omega / dg[c]
+                    dg[U(c)] = (cE[U(c)] + cE[U(off + (im * ny + j) * nz + k)] + cN[U(c)] + cN[U(off + (i * ny + jm) * nz + k)]
+                             + cT[U(c)] + cT[U(off + (i * ny + j) * nz + km)] + dX[U(c)] + dY[U(c)] + dZ[U(c)])
+                    idg[U(c)] = omega / dg[U(c)]
     # coarsest level: dense matrix and its Cholesky factor
     nx, ny, nz, off = LV[L - 1, 0], LV[L - 1, 1], LV[L - 1, 2], LV[L - 1, 3]
     n = nx * ny * nz

@@ -17,7 +17,8 @@ with eps_f the arithmetic face mean of the cell porosity, superscripts the time 
        -div(a_f grad phi) = -(rho/dt) [ div(eps_f^{n+1} u*) + (eps^{n+1} - eps^n)/dt ],
        a_f = (eps_f^{n+1})^2 / (eps_f^{n+1} + dt K/rho)
 
-   solved by AMG-preconditioned CG (:mod:`cfddem.gas.pressure`);
+   solved by geometric-multigrid-preconditioned CG (:mod:`cfddem.gas.multigrid`, default) or
+   AMG-preconditioned CG (pyamg, :mod:`cfddem.gas.pressure`);
 3. correction ``u^{n+1} = u* - (dt/rho) eps_f/(eps_f + dt K/rho) grad phi`` on every face
    that is not prescribed by a boundary condition, ``p^{n+1} = p^n + phi``.
 
@@ -75,6 +76,9 @@ class GasSolver:
     the rotation axis.
     advection: "tvd" (van Leer, bounded) or "central" (second order).
     tol, maxiter: pressure solver tolerance (relative residual) and iteration limit.
+    pressure_solver: "mg" (default: compiled geometric multigrid as CG preconditioner,
+        :class:`~cfddem.gas.multigrid.MGPressureSolver`) or "amg" (pyamg smoothed aggregation,
+        :class:`~cfddem.gas.pressure.PressureSolver`; ``rebuild_threshold`` applies to it only).
     rebuild_threshold: relative coefficient change that triggers an AMG rebuild (default inf:
         rebuild only when CG slows down, see :class:`~cfddem.gas.pressure.PressureSolver`).
     cfl_max: advective Courant number used by :meth:`max_stable_dt`.
