@@ -38,7 +38,7 @@ Transfers: prolongation P is cell-centred (tri)linear interpolation along the co
 value, at Dirichlet sides it is its negative, periodic sides wrap); restriction is P^T
 (order 2 + 2 > 2, the condition of Mohr & Wienands (2004) for cell-centred multigrid).
 
-Smoother: red-black Gauss-Seidel, ``nu`` sweeps red-then-black before the coarse-grid
+Smoother (default): red-black Gauss-Seidel, over-relaxed by ``omega``, ``nu`` sweeps red-then-black before the coarse-grid
 correction and ``nu`` sweeps black-then-red in reverse cell order after it, so the V-cycle
 is a symmetric positive definite operator (R = P^T, adjoint pre/post smoothing, exact
 coarsest solve) and a valid CG preconditioner.  With an odd periodic axis the two colours
@@ -420,9 +420,45 @@ def _prolong_axis(src, dst, n0, n1, n2, axis, AXI, AXF, o, add):
 
 
 @kernel
-def _vcycle(LV, AOFF, AXI, AXF, cE, cN, cT, dg, idg, dense, x, b, r, t1, t2, nu, rin, zout):
+def _chebyshev(nx, ny, nz, off, cE, cN, cT, dg, x, r, d, q, deg, lmin, lmax, keep_residual):
+    """``deg`` steps of Chebyshev-accelerated Jacobi smoothing on one level (Adams, Brezina, Hu
+    & Tuminaro, J. Comput. Phys. 188 (2003) 593): the error is multiplied by the Chebyshev
+    polynomial of D^-1 A that is smallest on [lmin, lmax] (lmax = 2 bounds the spectrum of
+    D^-1 A for this diagonally dominant operator).  On entry r = b - A x; on exit x is
+    smoothed and, with ``keep_residual``, r = b - A x again.  A polynomial in D^-1 A is
+    self-adjoint in the A inner product, so the same smoother before and after the
+    coarse-grid correction keeps the V-cycle symmetric.  Every loop vectorises."""
+    n = nx * ny * nz
+    theta = 0.5 * (lmax + lmin)
+    delta = 0.5 * (lmax - lmin)
+    sigma = theta / delta
+    rho = 1.0 / sigma
+    for c in range(off, off + n):
+        d[U(c)] = r[U(c)] / (dg[U(c)] * theta)
+    for k in range(deg):
+        for c in range(off, off + n):
+            x[U(c)] += d[U(c)]
+        if k == deg - 1 and not keep_residual:
+            break
+        _apply_level(nx, ny, nz, off, cE, cN, cT, dg, d, d, q, 0)
+        for c in range(off, off + n):
+            r[U(c)] -= q[U(c)]
+        if k == deg - 1:
+            break
+        rho_new = 1.0 / (2.0 * sigma - rho)
+        f1 = rho_new * rho
+        f2 = 2.0 * rho_new / delta
+        for c in range(off, off + n):
+            d[U(c)] = f1 * d[U(c)] + f2 * r[U(c)] / dg[U(c)]
+        rho = rho_new
+
+
+@kernel
+def _vcycle(LV, AOFF, AXI, AXF, cE, cN, cT, dg, idg, dense, x, b, r, t1, t2, dw, qw, nu, deg, lmin, rin, zout):
     """zout = M rin: one symmetric V-cycle from a zero initial guess (rin, zout: level 0).
-    t1, t2: work arrays of level-0 size for the axis-by-axis transfers."""
+    t1, t2: work arrays of level-0 size for the axis-by-axis transfers.  deg = 0: ``nu``
+    red-black Gauss-Seidel sweeps; deg > 0: Chebyshev smoothing of degree deg on
+    [lmin, 2] (dw, qw: its work arrays)."""
     L = LV.shape[0]
     n0 = LV[0, 0] * LV[0, 1] * LV[0, 2]
     for c in range(n0):
@@ -432,9 +468,14 @@ def _vcycle(LV, AOFF, AXI, AXF, cE, cN, cT, dg, idg, dense, x, b, r, t1, t2, nu,
         mx, my, mz, offc = LV[l + 1, 0], LV[l + 1, 1], LV[l + 1, 2], LV[l + 1, 3]
         for c in range(off, off + nx * ny * nz):
             x[c] = 0.0
-        for s in range(nu):
-            _gs_sweep(nx, ny, nz, off, cE, cN, cT, dg, idg, x, b, 0, False)
-        _apply_level(nx, ny, nz, off, cE, cN, cT, dg, x, b, r, 1)
+        if deg > 0:
+            for c in range(off, off + nx * ny * nz):
+                r[c] = b[c]
+            _chebyshev(nx, ny, nz, off, cE, cN, cT, dg, x, r, dw, qw, deg, lmin, 2.0, True)
+        else:
+            for s in range(nu):
+                _gs_sweep(nx, ny, nz, off, cE, cN, cT, dg, idg, x, b, 0, False)
+            _apply_level(nx, ny, nz, off, cE, cN, cT, dg, x, b, r, 1)
         # restriction b_{l+1} = P^T r_l, one axis at a time (z, y, x)
         ox, oy, oz = AOFF[l, 0], AOFF[l, 1], AOFF[l, 2]
         _restrict_axis(r[off:off + nx * ny * nz], t1, nx, ny, nz, mz, 2, AXI, AXF, oz)
@@ -461,8 +502,12 @@ def _vcycle(LV, AOFF, AXI, AXF, cE, cN, cT, dg, idg, dense, x, b, r, t1, t2, nu,
         _prolong_axis(x[offc:offc + mx * my * mz], t2[:nx * my * mz], nx, my, mz, 0, AXI, AXF, ox, False)
         _prolong_axis(t2[:nx * my * mz], t1[:nx * ny * mz], nx, ny, mz, 1, AXI, AXF, oy, False)
         _prolong_axis(t1[:nx * ny * mz], x[off:off + nx * ny * nz], nx, ny, nz, 2, AXI, AXF, oz, True)
-        for s in range(nu):
-            _gs_sweep(nx, ny, nz, off, cE, cN, cT, dg, idg, x, b, 1, True)
+        if deg > 0:
+            _apply_level(nx, ny, nz, off, cE, cN, cT, dg, x, b, r, 1)
+            _chebyshev(nx, ny, nz, off, cE, cN, cT, dg, x, r, dw, qw, deg, lmin, 2.0, False)
+        else:
+            for s in range(nu):
+                _gs_sweep(nx, ny, nz, off, cE, cN, cT, dg, idg, x, b, 1, True)
     for c in range(n0):
         zout[c] = x[c]
 
@@ -474,8 +519,8 @@ def _matvec(nx, ny, nz, cE, cN, cT, dg, x, y):
 
 
 @kernel
-def _pcg(LV, AOFF, AXI, AXF, cE, cN, cT, dg, vE, vN, vT, vdg, vidg, dense, xl, bl, rl, t1, t2, nu, singular, tol,
-         maxiter,
+def _pcg(LV, AOFF, AXI, AXF, cE, cN, cT, dg, vE, vN, vT, vdg, vidg, dense, xl, bl, rl, t1, t2, dw, qw, nu, deg,
+         lmin, singular, tol, maxiter,
          bvec, xvec, r, z, p, q):
     """Multigrid-preconditioned CG on level 0: A xvec = bvec, from the initial xvec.
 
@@ -503,7 +548,7 @@ def _pcg(LV, AOFF, AXI, AXF, cE, cN, cT, dg, vE, vN, vT, vdg, vidg, dense, xl, b
         rel = np.sqrt(rn) / bn
         if rel <= tol or its >= maxiter or not np.isfinite(rel):
             return its, rel
-        _vcycle(LV, AOFF, AXI, AXF, vE, vN, vT, vdg, vidg, dense, xl, bl, rl, t1, t2, nu, r, z)
+        _vcycle(LV, AOFF, AXI, AXF, vE, vN, vT, vdg, vidg, dense, xl, bl, rl, t1, t2, dw, qw, nu, deg, lmin, r, z)
         if singular:
             m = 0.0
             for c in range(n):
@@ -529,7 +574,7 @@ def _pcg(LV, AOFF, AXI, AXF, cE, cN, cT, dg, vE, vN, vT, vdg, vidg, dense, xl, b
                 rn += r[c] * r[c]
             if np.sqrt(rn) <= tol * bn or not np.isfinite(rn):
                 break
-            _vcycle(LV, AOFF, AXI, AXF, vE, vN, vT, vdg, vidg, dense, xl, bl, rl, t1, t2, nu, r, z)
+            _vcycle(LV, AOFF, AXI, AXF, vE, vN, vT, vdg, vidg, dense, xl, bl, rl, t1, t2, dw, qw, nu, deg, lmin, r, z)
             if singular:
                 m = 0.0
                 for c in range(n):
@@ -620,20 +665,29 @@ class MGPressureSolver:
 
     Same interface as :class:`~cfddem.gas.pressure.PressureSolver` (``set_coefficients``,
     ``solve``, ``apply``).  Parameters: grid, pressure_bc (side -> "neumann" | "dirichlet" |
-    "periodic"), tol (relative residual), maxiter, nu (Gauss-Seidel sweeps before and after
-    the coarse-grid correction), coarse_max (cells of the coarsest level, solved densely).
+    "periodic"), tol (relative residual), maxiter, nu (red-black Gauss-Seidel sweeps before
+    and after the coarse-grid correction), coarse_max (cells of the coarsest level, solved
+    densely), coarsen_ratio (an axis is coarsened while its cell width is at most this times
+    the smallest), omega (over-relaxation of the Gauss-Seidel sweeps), chebyshev (0: the
+    Gauss-Seidel smoother; k > 0: Chebyshev-Jacobi smoothing of degree k on the spectral
+    interval [2/cheb_ratio, 2] of D^-1 A instead, every loop vectorised; measured on the
+    chute 13-18 % cheaper solves with ``chebyshev=3, cheb_ratio=15, coarsen_ratio=2``, on
+    64^3 9 % dearer, so not the default).
     There is no set-up to reuse: the whole hierarchy's coefficients are refreshed from the
     current face coefficients at every ``set_coefficients`` (about one V-cycle's cost).
     """
 
     def __init__(self, grid, pressure_bc: dict, *, tol: float = 1e-8, maxiter: int = 200,
-                 nu: int = 2, coarse_max: int = 128, coarsen_ratio: float = 1.5, omega: float = 1.2):
+                 nu: int = 2, coarse_max: int = 128, coarsen_ratio: float = 1.5, omega: float = 1.2,
+                 chebyshev: int = 0, cheb_ratio: float = 6.0):
         self.grid = grid
         self.pressure_bc = dict(pressure_bc)
         self.tol = float(tol)
         self.maxiter = int(maxiter)
         self.nu = int(nu)
         self.omega = float(omega)
+        self.chebyshev = int(chebyshev)
+        self.cheb_ratio = float(cheb_ratio)
         self.singular = not any(v == "dirichlet" for v in self.pressure_bc.values())
         self.n_rebuilds = 0
         nx, ny, nz = grid.shape
@@ -695,6 +749,7 @@ class MGPressureSolver:
         self._v = [self._cE, self._cN, self._cT, self._dg, self._idg]  # the V-cycle's operator
         self._t1, self._t2 = np.zeros(self.N), np.zeros(self.N)
         self._xl, self._bl, self._rl = np.zeros(tot), np.zeros(tot), np.zeros(tot)
+        self._dw, self._qw = np.zeros(tot), np.zeros(tot)
         nc = sizes[-1]
         self._dense = np.zeros((nc, nc))
         self._vec = [np.zeros(self.N) for _ in range(6)]  # b, x, r, z, p, q
@@ -747,7 +802,9 @@ class MGPressureSolver:
     def vcycle(self, r: np.ndarray) -> np.ndarray:
         """One V-cycle applied to a (volume-scaled) residual r: the preconditioner M r."""
         z = np.empty(self.N)
-        _vcycle(self._LV, self._AOFF, self._AXI, self._AXF, *self._v, self._dense, self._xl, self._bl, self._rl, self._t1, self._t2, self.nu, np.ascontiguousarray(r, dtype=np.float64).ravel(), z)
+        _vcycle(self._LV, self._AOFF, self._AXI, self._AXF, *self._v, self._dense, self._xl, self._bl, self._rl,
+                self._t1, self._t2, self._dw, self._qw, self.nu, self.chebyshev, 2.0 / self.cheb_ratio,
+                np.ascontiguousarray(r, dtype=np.float64).ravel(), z)
         return z
 
     def solve(self, b: np.ndarray, x0: np.ndarray | None = None) -> tuple:
@@ -766,7 +823,8 @@ class MGPressureSolver:
         else:
             xv[:] = np.ravel(x0)
         its, rel = _pcg(self._LV, self._AOFF, self._AXI, self._AXF, self._cE, self._cN, self._cT, self._dg,
-                        *self._v, self._dense, self._xl, self._bl, self._rl, self._t1, self._t2, self.nu, self.singular, self.tol, self.maxiter,
+                        *self._v, self._dense, self._xl, self._bl, self._rl, self._t1, self._t2, self._dw, self._qw,
+                        self.nu, self.chebyshev, 2.0 / self.cheb_ratio, self.singular, self.tol, self.maxiter,
                         bv, xv, r, z, p, q)
         x = xv.copy()
         if self.singular:

@@ -1,6 +1,6 @@
 """Geometric multigrid pressure solver (cfddem.gas.multigrid): V-cycle convergence factor,
-symmetry, agreement with a direct solve for every boundary type, singular systems, thread
-independence, the coarse operators."""
+symmetry, agreement with a direct solve for every boundary type (both smoothers), singular
+systems, thread independence, the coarse operators."""
 
 import numba
 import numpy as np
@@ -51,12 +51,15 @@ CASES = [
 ]
 
 
-@pytest.mark.parametrize("shape,pbc", CASES)
-def test_agrees_with_direct_solve(shape, pbc):
+CHEB = {"chebyshev": 3, "cheb_ratio": 15.0, "coarsen_ratio": 2.0}
+
+
+@pytest.mark.parametrize("shape,pbc,smoother", [c + ({},) for c in CASES] + [CASES[0] + (CHEB,), CASES[3] + (CHEB,)])
+def test_agrees_with_direct_solve(shape, pbc, smoother):
     g, co, rng = random_system(shape, (0.05, 0.04, 0.07), pbc, seed=sum(shape))
     ref = PressureSolver(g, pbc)
     ref.set_coefficients(*co)  # the independent CSR assembly (singular: cell 0 pinned)
-    mg = MGPressureSolver(g, pbc, tol=1e-11, maxiter=100)
+    mg = MGPressureSolver(g, pbc, tol=1e-11, maxiter=100, **smoother)
     mg.set_coefficients(*co)
     b = rng.standard_normal(shape)
     if mg.singular:
@@ -122,12 +125,14 @@ def test_vcycle_convergence_factor_on_a_known_solution():
     assert errs[-1] < 1e-4 * np.linalg.norm(exact)
 
 
-def test_vcycle_is_symmetric_positive_definite():
+@pytest.mark.parametrize("smoother", [{}, {"chebyshev": 3, "cheb_ratio": 15.0, "coarsen_ratio": 2.0}])
+def test_vcycle_is_symmetric_positive_definite(smoother):
     """<M u, v> = <u, M v> and <M u, u> > 0: the V-cycle is a valid CG preconditioner (also
-    with an odd periodic axis, where red and black cells touch across the wrap)."""
+    with an odd periodic axis, where red and black cells touch across the wrap), with the
+    red-black Gauss-Seidel and with the Chebyshev smoother."""
     for shape, pbc in ((((16, 15, 40), bcs((N, N), (N, N), (N, D)))), ((9, 8, 10), bcs((P, P), (N, N), (D, D)))):
         g, co, rng = random_system(shape, (0.08, 0.045, 0.24), pbc, seed=2)
-        mg = MGPressureSolver(g, pbc)
+        mg = MGPressureSolver(g, pbc, **smoother)
         mg.set_coefficients(*co)
         assert len(mg.levels) >= 2
         for _ in range(3):
