@@ -262,7 +262,16 @@ class GasSolver:
                 val, it = self._implicit_viscous(c, sl, self._numer[c], self._den[c], eo, dt, (lo, hi))
                 viscous_iters += it
                 vel[c][sl] = val
-        self.bc.fill_velocity(*vel)
+        # the divergence below reads only the faces of the cells: the one face it needs that
+        # the predictor did not write is face n of a periodic component (= face 0); the
+        # halos are filled after the correction
+        for c in range(3):
+            if self.bc.periodic[c]:
+                s_n = [slice(None)] * 3
+                s_0 = [slice(None)] * 3
+                s_n[c] = g + grid.shape[c]
+                s_0[c] = g
+                vel[c][tuple(s_n)] = vel[c][tuple(s_0)]
         # --- 2. pressure increment --------------------------------------------------------
         coefs = self._coef
         for c in range(3):
