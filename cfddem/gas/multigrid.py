@@ -13,9 +13,9 @@ the same.
 
 Hierarchy (built once per grid, in Python):
 
-* cell-centred coarsening by 2 along each axis whose typical cell width is at most twice
-  the smallest one (semi-coarsening keeps the coarse cells roughly isotropic, so point
-  Gauss-Seidel still smooths); coarse cell I covers fine cells 2I and 2I+1, and an odd
+* cell-centred coarsening by 2 along each axis whose cell width is at most
+  ``coarsen_ratio`` (1.5) times the smallest one (semi-coarsening keeps the coarse cells
+  roughly isotropic, so point Gauss-Seidel still smooths); coarse cell I covers fine cells 2I and 2I+1, and an odd
   count leaves the last coarse cell with one fine cell (ceil(n/2) coarse cells: coarse
   grids may be non-uniform, all widths and centre distances are tracked per axis);
 * until at most ``coarse_max`` cells remain (or no axis can be coarsened); the coarsest
@@ -30,24 +30,26 @@ face (faces in parallel: their conductances add) and D_F the coarse centre dista
 equals the piecewise-constant Galerkin sum ``sum_f W_f`` times ``d_f / D_F`` (d_f the fine
 centre distance across the face), which is how it is computed; Dirichlet terms scale with
 the boundary-cell widths in the same way.  (For a coefficient that jumps *along* the normal
-inside a coarse cell a harmonic mean would be closer; the bed/air porosity jump is a factor
-~5 in a = eps^2 and costs about one CG iteration, measured.)
+inside a coarse cell a harmonic mean would be closer; on the chute the bed/air jump, up to a
+factor ~6 in a with the drag, costs at most one CG iteration: 7 against 6-7 without it.)
 
 Transfers: prolongation P is cell-centred (tri)linear interpolation along the coarsened axes
 (piecewise constant along the others; at Neumann sides the ghost equals the coarse cell
 value, at Dirichlet sides it is its negative, periodic sides wrap); restriction is P^T
 (order 2 + 2 > 2, the condition of Mohr & Wienands (2004) for cell-centred multigrid).
 
-Smoother (default): red-black Gauss-Seidel, over-relaxed by ``omega``, ``nu`` sweeps red-then-black before the coarse-grid
-correction and ``nu`` sweeps black-then-red in reverse cell order after it, so the V-cycle
+Smoother (default): red-black Gauss-Seidel over-relaxed by ``omega``, ``nu`` sweeps
+red-then-black before the coarse-grid correction and ``nu`` sweeps black-then-red in
+reverse cell order after it, so the V-cycle
 is a symmetric positive definite operator (R = P^T, adjoint pre/post smoothing, exact
 coarsest solve) and a valid CG preconditioner.  With an odd periodic axis the two colours
 touch across the wrap; the sweeps then are ordinary Gauss-Seidel sweeps in the red-black
 order and the reverse order is still their adjoint.
 
 All kernels are serial (one numba thread), so results do not depend on the thread count and
-the reductions (CG dot products) are in a fixed order.  On the 2-core machines a 36,000-cell
-solve does not gain from threads (measured, docs/gas.md).
+the reductions (CG dot products) are in a fixed order.  A threaded version was not tried: on
+the shared 2-core machines the other gas kernels got slower with a second thread
+(docs/gas.md).
 
 References: Trottenberg, Oosterlee & Schueller, *Multigrid* (2001), ch. 2-5; Mohr &
 Wienands, Comput. Vis. Sci. 7 (2004) 129 (cell-centred transfers); Tatebe, Copper Mountain
