@@ -253,6 +253,9 @@ SCHEMA: dict[str, dict] = {
         "start_time": _nonneg(0.0, "s", "feeding starts"),
         "end_time": _pos(INF, "s", "feeding stops"),
         "gap": _nonneg(0.1, "-", "extra bcc lattice spacing as a fraction of the diameter: room for the settling of the previous layer, so new layers do not wait"),
+        "hold_length": Key("float", None, "m", "fed particles move at the feed velocity, unaffected by forces, until they are this far "
+                           "past the insertion plane, pushing what is ahead like the material behind a sluice gate "
+                           "(default: one lattice period, about 1.3 d; 0: released at once)", lo=0.0),
     },
     "exit": {
         "z": Key("float", None, "m", "particles with z beyond this plane leave the simulation "

@@ -358,7 +358,7 @@ class Simulation:
                 if scene is not None:
                     targets.append(scene.next_time(t))
                 if self.inlet is not None and self.inlet.start_time <= t < self.inlet.end_time:
-                    targets.append(self.inlet._due_time(self.inlet.layers_done))
+                    targets.append(self.inlet.next_due_time())
                 later = [x for x in targets if x > t + 0.5 * dt]
                 n = max(1, int(round((min(later) - t) / dt))) if later else 1
                 n = min(n, exit_every - (sys_.step_count % exit_every))
@@ -533,6 +533,7 @@ class Simulation:
         c = self.counters
         mass_in = self.inlet.mass_inserted if self.inlet is not None else 0.0
         row = dict(time=s.time, step=float(s.step_count), n_particles=float(s.n), mass_in=mass_in,
+                   feed_deficit=self.inlet.mass_dropped if self.inlet is not None else 0.0,
                    mass_out=c["mass_out"], mass_lost=c["mass_lost"],
                    mass_present=float(np.sum(s.mass)) if s.n else 0.0,
                    kinetic_energy=s.kinetic_energy(), max_overlap_ratio=s.max_overlap_ratio(),
@@ -583,6 +584,13 @@ class Simulation:
                       ", ".join(f"{k} {v:.1f} s" for k, v in timings.items()))
         if message:
             self.log.info(message)
+        inl = self.inlet
+        if inl is not None and inl.mass_inserted > 0:
+            frac = inl.mass_dropped / (inl.mass_inserted + inl.mass_dropped)
+            (self.log.warning if frac > 0.01 else self.log.info)(
+                "inlet: %.4g kg fed, %d particles; feed deficit %.3g %% (%d sites blocked for %g lattice "
+                "periods and dropped)", inl.mass_inserted, inl.count_inserted, 100 * frac, inl.count_dropped,
+                inl.retry_periods)
         if self.case.output.plots and status != "failed":
             try:
                 from .report.plots import write_run_report
@@ -739,7 +747,7 @@ def sluice_inlet(case: Case):
     p, inl = case.particles, case.inlet
     return SluiceInlet(width=case.geometry.width, height=inl.height, z=inl.z, diameter=p.diameter,
                        diameter_max=p.diameter_max, seed=p.seed, density=p.density, mass_rate=inl.mass_rate,
-                       start_time=inl.start_time, end_time=inl.end_time, gap=inl.gap)
+                       start_time=inl.start_time, end_time=inl.end_time, gap=inl.gap, hold_length=inl.hold_length)
 
 
 def expected_particles(case: Case) -> int:

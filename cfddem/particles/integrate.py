@@ -68,8 +68,10 @@ def _half_kick(vx, vy, vz, ax, ay, az, h, rotating, r00, r01, r02, r10, r11, r12
 
 @parallel_kernel
 def kick_drift(n, pos, vel, omg, force, torque, mass, inertia, ext_f, ext_t, has_ext, dt, rotating,
-               Rv, Rw, periodic_len, plo, ref):
-    """Opening half kick and drift; wraps periodic axes; returns max |r - r_ref|^2."""
+               Rv, Rw, periodic_len, plo, ref, held):
+    """Opening half kick and drift; wraps periodic axes; returns max |r - r_ref|^2.
+    Held particles (``held[i] != 0``: a feed moving at a set velocity) keep their velocity and
+    spin: no kick, only the drift."""
     h = 0.5 * dt
     rv00 = Rv[0, 0]
     rv01 = Rv[0, 1]
@@ -106,14 +108,21 @@ def kick_drift(n, pos, vel, omg, force, torque, mass, inertia, ext_f, ext_t, has
             etx = ext_t[i, 0]
             ety = ext_t[i, 1]
             etz = ext_t[i, 2]
-        vx, vy, vz = _half_kick(vel[i, 0], vel[i, 1], vel[i, 2],
-                                (force[i, 0] + efx) * im, (force[i, 1] + efy) * im,
-                                (force[i, 2] + efz) * im, h, rotating, 
-                                rv00, rv01, rv02, rv10, rv11, rv12, rv20, rv21, rv22)
-        wx, wy, wz = _half_kick(omg[i, 0], omg[i, 1], omg[i, 2],
-                                (torque[i, 0] + etx) * ii, (torque[i, 1] + ety) * ii,
-                                (torque[i, 2] + etz) * ii, h, rotating, 
-                                rw00, rw01, rw02, rw10, rw11, rw12, rw20, rw21, rw22)
+        vx = vel[i, 0]
+        vy = vel[i, 1]
+        vz = vel[i, 2]
+        wx = omg[i, 0]
+        wy = omg[i, 1]
+        wz = omg[i, 2]
+        if held[i] == 0:
+            vx, vy, vz = _half_kick(vx, vy, vz,
+                                    (force[i, 0] + efx) * im, (force[i, 1] + efy) * im,
+                                    (force[i, 2] + efz) * im, h, rotating,
+                                    rv00, rv01, rv02, rv10, rv11, rv12, rv20, rv21, rv22)
+            wx, wy, wz = _half_kick(wx, wy, wz,
+                                    (torque[i, 0] + etx) * ii, (torque[i, 1] + ety) * ii,
+                                    (torque[i, 2] + etz) * ii, h, rotating,
+                                    rw00, rw01, rw02, rw10, rw11, rw12, rw20, rw21, rw22)
         vel[i, 0] = vx
         vel[i, 1] = vy
         vel[i, 2] = vz
@@ -220,7 +229,7 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
                       pf, pr, has_roll, first_start, second_start, second_list,
                       wgeom, wref, wpar, nw, whist, won, wfw, wtw, wfn,
                       gx, gy, gz, omx, omy, omz, cax, cay, caz,
-                      dt, dt_hist, kick, rotating, Rv, Rw, drift_next, periodic_len, plo, ref):
+                      dt, dt_hist, kick, rotating, Rv, Rw, drift_next, periodic_len, plo, ref, held):
     """Sum pair forces per particle (fixed order), add walls, gravity, centrifugal force, store
     F and T, and (if ``kick``) do the closing half kick.
 
@@ -414,7 +423,8 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
         torque[i, 0] = tx
         torque[i, 1] = ty
         torque[i, 2] = tz
-        if kick:
+        free = held[i] == 0
+        if kick and free:
             vx, vy, vz = _half_kick(vx, vy, vz, (fx + efx) * im, (fy + efy) * im,
                                     (fz + efz) * im, h, rotating, 
                                 rv00, rv01, rv02, rv10, rv11, rv12, rv20, rv21, rv22)
@@ -435,12 +445,15 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
         if drift_next:
             im2 = im
             ii2 = ii
-            ux, uy, uz = _half_kick(vx, vy, vz, (fx + efx) * im2, (fy + efy) * im2,
-                                    (fz + efz) * im2, h, rotating, 
-                                rv00, rv01, rv02, rv10, rv11, rv12, rv20, rv21, rv22)
-            sx2, sy2, sz2 = _half_kick(wx, wy, wz, (tx + etx) * ii2, (ty + ety) * ii2,
-                                       (tz + etz) * ii2, h, rotating, 
-                                rw00, rw01, rw02, rw10, rw11, rw12, rw20, rw21, rw22)
+            ux, uy, uz = vx, vy, vz
+            sx2, sy2, sz2 = wx, wy, wz
+            if free:
+                ux, uy, uz = _half_kick(vx, vy, vz, (fx + efx) * im2, (fy + efy) * im2,
+                                        (fz + efz) * im2, h, rotating,
+                                        rv00, rv01, rv02, rv10, rv11, rv12, rv20, rv21, rv22)
+                sx2, sy2, sz2 = _half_kick(wx, wy, wz, (tx + etx) * ii2, (ty + ety) * ii2,
+                                           (tz + etz) * ii2, h, rotating,
+                                           rw00, rw01, rw02, rw10, rw11, rw12, rw20, rw21, rw22)
             vel[i, 0] = ux
             vel[i, 1] = uy
             vel[i, 2] = uz

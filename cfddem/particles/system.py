@@ -43,7 +43,7 @@ class StepStatus:
 
 
 _PARTICLE_ARRAYS = ("pos", "vel", "omega", "force", "torque", "radius", "mass", "inertia", "ids",
-                    "ext_force", "ext_torque", "prev", "ref", "body", "boff")
+                    "ext_force", "ext_torque", "prev", "ref", "body", "boff", "held")
 _WALL_ARRAYS = ("whist", "won", "wfn", "wfw", "wtw")
 
 
@@ -124,10 +124,10 @@ class ParticleSystem:
         nw = max(self.nw, 1)
         shapes = dict(pos=(cap, 3), vel=(cap, 3), omega=(cap, 3), force=(cap, 3), torque=(cap, 3),
                       radius=(cap,), mass=(cap,), inertia=(cap,), ids=(cap,), ext_force=(cap, 3),
-                      ext_torque=(cap, 3), prev=(cap,), ref=(cap, 3), body=(cap,), boff=(cap, 3),
+                      ext_torque=(cap, 3), prev=(cap,), ref=(cap, 3), body=(cap,), boff=(cap, 3), held=(cap,),
                       whist=(cap, nw, 3),
                       won=(cap, nw), wfn=(cap, nw), wfw=(cap, nw, 3), wtw=(cap, nw, 3))
-        dtypes = dict(ids=np.int64, prev=np.int64, body=np.int64, won=np.uint8)
+        dtypes = dict(ids=np.int64, prev=np.int64, body=np.int64, won=np.uint8, held=np.uint8)
         for k, shp in shapes.items():
             a = np.zeros(shp, dtype=dtypes.get(k, np.float64))
             if k in ("mass", "inertia", "radius"):
@@ -169,9 +169,11 @@ class ParticleSystem:
         return self._npairs
 
     # ------------------------------------------------------------------ particles in/out
-    def add_particles(self, pos, vel, radius, density, omega=None) -> np.ndarray:
+    def add_particles(self, pos, vel, radius, density, omega=None, held: bool = False) -> np.ndarray:
         """Append spheres; returns their new ids.  radius, density: scalars or (m,) arrays.
-        m = rho 4/3 pi R^3, I = 2/5 m R^2.  Positions are wrapped into periodic boxes."""
+        m = rho 4/3 pi R^3, I = 2/5 m R^2.  Positions are wrapped into periodic boxes.
+        ``held``: the new spheres move at their given velocity and spin, unaffected by forces,
+        until :meth:`release` (a feed that pushes like a piston; they still push others)."""
         pos = np.atleast_2d(np.asarray(pos, float))
         m = len(pos)
         if pos.shape != (m, 3):
@@ -210,6 +212,7 @@ class ParticleSystem:
         self._prev[s] = -1
         self._body[s] = -1
         self._boff[s] = 0.0
+        self._held[s] = 1 if held else 0
         self.n += m
         self._need_rebuild = True
         self._forces_stale = True
@@ -330,7 +333,7 @@ class ParticleSystem:
             self._wgeom, self._wref, self._wpar, self.nw, self._whist, self._won, self._wfw,
             self._wtw, self._wfn, g[0], g[1], g[2], om[0], om[1], om[2], ap[0], ap[1], ap[2],
             self.dt, dt_hist, kick, self._rotating, self._Rv, self._Rw, drift_next, self._plen,
-            self._plo, self._ref)
+            self._plo, self._ref, self._held)
         self._last_ov = max(ov_pp, ov_w)
         self._pending_m2 = m2 if drift_next else -1.0
         return bad
@@ -384,7 +387,7 @@ class ParticleSystem:
                 kd = it.kick_drift_s if self._serial(self.n) else it.kick_drift
                 m2 = kd(self.n, self._pos, self._vel, self._omega, self._force, self._torque,
                         self._mass, self._inertia, self._ext_force, self._ext_torque, self._has_ext, dt,
-                        self._rotating, self._Rv, self._Rw, self._plen, self._plo, self._ref)
+                        self._rotating, self._Rv, self._Rw, self._plen, self._plo, self._ref, self._held)
             if clumped:  # bodies: opening kick, rotation, drift; members follow
                 m2 = max(m2, self._clump_open())
             if len(self._moving):
@@ -494,6 +497,19 @@ class ParticleSystem:
         """(n_walls, 3) torque exerted by the particles on each wall about its reference point."""
         it.reduce_walls(self.n, self.nw, self._won, self._wfw, self._wtw, self._fw, self._tw)
         return self._tw[: self.nw].copy()
+
+    # ------------------------------------------------------------------ held particles
+    @property
+    def held(self) -> np.ndarray:
+        """(n,) bool: particles moving at a set velocity, unaffected by forces (a feed)."""
+        return self._held[: self.n].astype(bool)
+
+    def release(self, mask) -> int:
+        """Let the held particles where ``mask`` is True move under forces from now on; returns
+        how many were released."""
+        mask = np.asarray(mask, bool) & (self._held[: self.n] != 0)
+        self._held[: self.n][mask] = 0
+        return int(mask.sum())
 
     # ------------------------------------------------------------------ wall control
     def _wall_index(self, wall) -> int:
@@ -680,6 +696,9 @@ class ParticleSystem:
         for name in _PARTICLE_ARRAYS + _WALL_ARRAYS:
             if name in ("body", "boff") and "p_" + name not in state:  # written before clumps
                 getattr(self, "_" + name)[:n] = -1 if name == "body" else 0.0
+                continue
+            if name == "held" and "p_held" not in state:  # written before held feeds
+                self._held[:n] = 0
                 continue
             a = np.asarray(state["p_" + name])
             getattr(self, "_" + name)[:n] = a.reshape(getattr(self, "_" + name)[:n].shape)

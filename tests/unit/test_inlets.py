@@ -28,7 +28,12 @@ class FakeSystem:
             out[i] = np.any(d < lim)
         return out
 
-    def add_particles(self, pos, vel, radius, density, omega=None):
+    n = property(lambda self: len(self.pos))
+
+    def release(self, mask):
+        return int(np.sum(mask))
+
+    def add_particles(self, pos, vel, radius, density, omega=None, held=False):
         self.pos = np.concatenate([self.pos, pos])
         self.vel = np.concatenate([self.vel, vel])
         self.radius = np.concatenate([self.radius, radius])
@@ -89,15 +94,66 @@ def test_mass_rate_exact_and_never_overlapping():
     assert np.allclose(gaps, inl.lattice.a / 2, atol=inl.velocity * dt * 1.0001)
 
 
-def test_blocked_inlet_waits():
+def test_blocked_sites_are_retried_then_dropped():
+    """A bead on the first corner site that moves with the lattice keeps that site blocked: it is
+    retried as the lattice moves on and dropped after retry_periods lattice periods; every other
+    site enters on time, and inserted + dropped = rate x time."""
     sysm = FakeSystem()
     inl = SluiceInlet(width=0.02, height=0.012, z=0.0, diameter=0.003, density=2550.0, mass_rate=0.05)
-    inl.insert(sysm, 0.0, 1e-4)  # first layer, at rest (we never advance)
-    n1 = len(sysm.pos)
-    for k in range(1, 200):
-        inl.insert(sysm, k * 1e-4, 1e-4)
-    assert len(sysm.pos) == n1  # the next layer never fits: it waits
-    assert inl.backlog_time > 0
+    site = inl.layer(0)[0]
+    sysm.pos = site[None, :].copy()
+    sysm.vel = np.array([[0.0, 0.0, inl.velocity]])
+    sysm.radius = np.array([0.0015])
+    dt = 1e-4
+    t = 0.0
+    T = 0.3
+    while t < T - 1e-12:
+        inl.insert(sysm, t, dt)
+        sysm.advance(dt)
+        t += dt
+    assert inl.count_dropped == 1 and inl.n_pending == 0
+    assert inl.mass_dropped == pytest.approx(inl.count_dropped * inl.particle_mass)
+    layer_mass = inl.particle_mass * max(len(inl.lattice.corner), len(inl.lattice.centre))
+    assert abs(inl.mass_inserted + inl.mass_dropped - 0.05 * T) <= layer_mass
+    p = sysm.pos
+    dd = np.linalg.norm(p[:, None] - p[None], axis=2) + np.eye(len(p))
+    assert dd.min() >= 0.003 * (1 - 1e-9)
+
+
+def test_blocked_site_enters_late_at_its_lattice_position():
+    """A site blocked at its due time enters as soon as the blocker has moved, at the position
+    the lattice has reached by then (not at the insertion plane), with the feed velocity."""
+    sysm = FakeSystem()
+    inl = SluiceInlet(width=0.02, height=0.012, z=0.0, diameter=0.003, density=2550.0, mass_rate=0.05)
+    site = inl.layer(0)[0]
+    sysm.pos = site[None, :].copy()
+    sysm.vel = np.zeros((1, 3))
+    sysm.radius = np.array([0.0015])
+    inl.insert(sysm, 0.0, 1e-4)
+    n_layer = len(inl.layer(0))
+    assert len(sysm.pos) == 1 + n_layer - 1 and inl.n_pending == 1
+    sysm.pos[0, 1] += 0.5  # the blocker leaves
+    t = 2e-3
+    inl.insert(sysm, t, 1e-4)
+    assert inl.n_pending == 0
+    new = sysm.pos[-1]
+    assert new[0] == pytest.approx(site[0]) and new[1] == pytest.approx(site[1])
+    assert new[2] == pytest.approx(site[2] + inl.velocity * t)
+    assert sysm.vel[-1, 2] == pytest.approx(inl.velocity)
+
+
+def test_pending_sites_survive_a_restart():
+    sysm = FakeSystem()
+    inl = SluiceInlet(width=0.02, height=0.012, z=0.0, diameter=0.003, density=2550.0, mass_rate=0.05)
+    sysm.pos = inl.layer(0)[:2].copy()
+    sysm.vel = np.zeros((2, 3))
+    sysm.radius = np.full(2, 0.0015)
+    inl.insert(sysm, 0.0, 1e-4)
+    st = inl.get_state()
+    inl2 = SluiceInlet(width=0.02, height=0.012, z=0.0, diameter=0.003, density=2550.0, mass_rate=0.05)
+    inl2.set_state(st)
+    assert inl2.n_pending == inl.n_pending == 2
+    assert [(k, t, s.tolist()) for k, t, s in inl2.pending] == [(k, t, s.tolist()) for k, t, s in inl.pending]
 
 
 def test_polydisperse_feed_sizes_and_rate():

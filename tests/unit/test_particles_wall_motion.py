@@ -67,3 +67,30 @@ def test_wall_by_unknown_name():
     s = _gate_system()
     with pytest.raises(KeyError, match="no wall named"):
         s.set_wall_active("door", False)
+
+
+def test_held_particles_move_at_their_velocity_and_push():
+    """A held sphere (a feed) keeps its velocity under gravity and contact, pushes a free sphere
+    ahead of it, and falls freely once released."""
+    s = ParticleSystem(pp=C, walls=[], dt=1e-5, gravity=G)
+    v0 = np.array([0.0, 0.0, 0.2])
+    s.add_particles(np.array([[0.0, 0.0, 0.0]]), v0, R, RHO, held=True)
+    s.add_particles(np.array([[0.0, 0.0, 2 * R + 1e-4]]), np.zeros(3), R, RHO)
+    assert s.held.tolist() == [True, False]
+    s.step(5000)
+    ih = int(np.flatnonzero(s.ids == 0)[0])
+    jf = int(np.flatnonzero(s.ids == 1)[0])
+    assert np.array_equal(s.vel[ih], v0) and np.all(s.omega[ih] == 0.0)
+    assert s.pos[ih] == pytest.approx(v0 * 5000 * 1e-5, abs=1e-12)
+    assert s.vel[jf, 2] > 0.1  # pushed ahead
+    # free: it falls (slightly held back by the contact with the held sphere, which does not)
+    assert -9.81 * 0.05 < s.vel[jf, 1] < -0.9 * 9.81 * 0.05
+    assert s.release(np.ones(2, bool)) == 1 and not s.held.any()
+    s.step(1000)
+    ih = int(np.flatnonzero(s.ids == 0)[0])
+    assert s.vel[ih, 1] == pytest.approx(-9.81 * 0.01, rel=1e-6)
+    # the flag survives a restart
+    s2 = ParticleSystem(pp=C, walls=[], dt=1e-5, gravity=G)
+    s.add_particles(np.array([[0.1, 0.0, 0.0]]), v0, R, RHO, held=True)
+    s2.set_state(s.get_state())
+    assert s2.held.sum() == 1
