@@ -291,6 +291,9 @@ SCHEMA: dict[str, dict] = {
         "lid": Key("str", "crosswind", "-", "open-top boundary: 'crosswind' (lab air at rest seen from the rotating "
                    "frame), 'slip' (free slip) or 'wall' (no slip)", choices=("crosswind", "slip", "wall")),
         "inlet_velocity": Key("float", None, "m/s", "co-flow velocity at the entrance (default: the feed velocity)"),
+        "pressure_solver": Key("str", "mg", "-", "pressure solver: 'mg' (compiled geometric multigrid as CG "
+                               "preconditioner, threaded) or 'amg' (pyamg smoothed aggregation, for comparison)",
+                               choices=("mg", "amg")),
     },
 }
 
