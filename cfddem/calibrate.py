@@ -118,7 +118,7 @@ def _write(rows, out: Path, name: str, target) -> None:
              "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['mu']:g} | {r['mu_r']:g} | {r['friction']:.4f} | {r['shear_force']:.4g} | "
-                     f"{r['normal_force']:.4g} | {100 * r['load_error']:.2f} % | {r['inertial_number']:.2g} | "
+                     f"{r['normal_force']:.4g} | {100 * r['load_error']:.2g} % | {r['inertial_number']:.2g} | "
                      f"{r['status']} | {r['wall_s']:.0f} |")
     if target is not None:
         lines += ["", f"Target {name.replace('_', ' ')} {target:g}:"]
