@@ -214,3 +214,40 @@ def test_removing_a_member_removes_its_clump():
     assert np.allclose(sorted(sys.clumps.com[:, 0]), [0.0, 0.02])
     st = sys.step(10)
     assert st.ok
+
+
+def test_rotating_frame_one_sphere_clump_follows_a_free_sphere():
+    """A clump of one sphere and a free sphere in a rotating frame with gravity: same Boris kick
+    (Coriolis) and centrifugal force, same path to round-off."""
+    om = (0.0, 0.0, 2.0)  # rad/s about z
+    kw = dict(pp=PP, walls=[], dt=1e-4, gravity=(0, -9.81, 0), omega=om, axis_point=(0.01, 0, 0))
+    a = ParticleSystem(**kw)
+    a.add_particles([[0.2, 0.1, 0.0]], [[0.3, 0.0, 0.1]], 0.002, 1000.0)
+    b = ParticleSystem(**kw)
+    sh = ClumpShape.from_spheres([[0.0, 0.0, 0.0]], 0.002, 1000.0)
+    b.add_clumps(sh, [[0.2, 0.1, 0.0]], vel=[[0.3, 0.0, 0.1]])
+    a.step(3000)
+    b.step(3000)
+    assert np.linalg.norm(a.pos[0] - [0.2, 0.1, 0.0]) > 0.1  # it moved
+    assert np.allclose(b.clumps.com[0], a.pos[0], rtol=0, atol=1e-13)
+    assert np.allclose(b.clumps.vel[0], a.vel[0], rtol=0, atol=1e-12)
+
+
+def test_body_force_in_a_rotating_frame_is_exact():
+    """Body force of a clump at rest = M g + M Omega^2 (r_perp) whatever the members' mass shares;
+    centrifugal torque about the centre of mass = -Omega x (I Omega)."""
+    om = np.array([0.0, 3.0, 0.0])
+    sys = ParticleSystem(pp=PP, walls=[], dt=1e-5, gravity=(0, -9.81, 0), omega=om)
+    sh = _asym_shape()
+    q = np.array([0.9, 0.2, -0.3, 0.1])
+    sys.add_clumps(sh, [[0.05, 0.02, -0.03]], quat=[q])
+    sys.step(0)
+    sys._refresh()
+    c = sys.clumps
+    M = sh.mass
+    r = np.array([0.05, 0.02, -0.03])
+    expect = M * np.array([0, -9.81, 0]) - M * np.cross(om, np.cross(om, r))
+    assert np.allclose(c.force[0], expect, rtol=1e-12, atol=0)
+    R = matrix_from_quat(c.quat[0])
+    I_lab = R @ np.diag(sh.inertia) @ R.T
+    assert np.allclose(c.torque[0], -np.cross(om, I_lab @ om), rtol=1e-10, atol=1e-22)
