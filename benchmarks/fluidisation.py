@@ -1,6 +1,6 @@
 """Fluidisation curve of a CFD-DEM bed for the five drag closures.
 
-    python benchmarks/fluidisation.py --out DIR [--closures beetstra,wen_yu] [--t-average 1.0]
+    python benchmarks/fluidisation.py --out DIR [--closures beetstra,wen_yu] [--t-average 0.8]
     python benchmarks/fluidisation.py --out DIR --plot-only      # chart from DIR/fluidisation_*.json
 
 The column (:func:`build_column`, :func:`cfddem.coupling.exchange.column_gas`): glass spheres
@@ -8,10 +8,12 @@ The column (:func:`build_column`, :func:`cfddem.coupling.exchange.column_gas`): 
 floor wall at y = 0 through which the gas enters with a prescribed superficial velocity U
 (an ideal distributor plate: each bottom cell receives the flux U times its area; the
 particles cannot pass), pressure outlet p = 0 on top (y = Ly), and a lid wall there for the
-particles.  The default bed is *wide and thin* (pseudo-2-D: 16 x 1 gas cells across, 48 mm by
-3 mm, 3200 particles of 1 mm, bed about 18 mm = 6 cells high, H/W about 0.4): narrower
-columns (2 x 2 or 3 x 3 cells) slug, the bed rising as a plug and falling back onto the
-distributor, so that the floor carried 3 to 15 % of the weight on average.
+particles.  The default bed (:data:`DEFAULT`) is *wide and thin*: pseudo-2-D, 16 x 20 x 1 gas
+cells of 1.5 mm (24 mm wide, 1.5 mm deep, 30 mm high), 3200 particles of 0.5 mm, bed about
+9 mm = 6 cells high (H/W about 0.4), in which bubbles form.  Narrower columns (2 x 2 or 3 x 3
+cells) and shallow beds (2-3 cells high) slug, the bed rising as a plug and falling back onto
+the distributor, so that the floor carried 3 to 15 % of the weight on average
+(docs/coupling.md, "The fluidisation plateau").
 
 Measured quantities (:func:`sample`):
 
