@@ -191,6 +191,10 @@ SCHEMA: dict[str, dict] = {
         "wall_interval": _nonneg(600.0, "s (wall)", "checkpoint every this much wall time (0: off)"),
         "every_steps": Key("int", 0, "-", "checkpoint every this many particle steps (0: off)", lo=0),
         "keep": Key("int", 2, "-", "number of newest checkpoints kept", lo=1),
+        "start_from": Key("str", "", "-", "start this run from another run's state: a checkpoint file, or a run "
+                          "folder (its newest checkpoint); the time step, contact parameters, coupling interval... "
+                          "may differ (a branch from a developed flow); averages start afresh; relative to the case "
+                          "folder"),
     },
     "gravity": {
         "g": _nonneg(9.81, "m/s^2", "magnitude of gravity"),
@@ -635,6 +639,13 @@ def _check_consistency(r: dict, case_dir: Path) -> None:
         for k in ("vel", "omega"):
             if k in t:
                 _vec(f"{key}.{k}", t[k])
+    sf = r["checkpoint"]["start_from"]
+    if sf:
+        f = case_dir / sf
+        if not f.exists():
+            raise CaseError("checkpoint.start_from", f"not found: {f}")
+        if f.is_dir() and not (f / "checkpoints").is_dir() and not any(f.glob("ckpt_*.h5")):
+            raise CaseError("checkpoint.start_from", f"{f} holds no checkpoints")
     if p["initial_file"]:
         f = case_dir / p["initial_file"]
         if not f.exists():

@@ -260,6 +260,8 @@ class Simulation:
             res = ResultsFile(self.out / "results.h5", mode="a")
             res.truncate_after(t)
         else:
+            if case.checkpoint.start_from:
+                self._branch_from(case.path / case.checkpoint.start_from)
             check_disk_space(case, self.out)
             (self.out / "case.resolved.toml").write_text(case.to_toml())
             res = ResultsFile(self.out / "results.h5", mode="w")
@@ -275,6 +277,51 @@ class Simulation:
             if quads:
                 pv.set_walls(quads)
         return res, pv
+
+    def _branch_from(self, src: Path) -> None:
+        """Start from another run's checkpoint (``checkpoint.start_from``): particles with their
+        contact history and neighbour list, the inlet, the exit counters and the clock; the gas
+        fields when the grid matches.  Averages, timings and the rest start afresh; the schedules
+        continue from the checkpoint's time."""
+        from .io.checkpoint import latest_checkpoint, read_checkpoint
+
+        key = "checkpoint.start_from"
+        if src.is_dir():
+            found = latest_checkpoint(src / "checkpoints" if (src / "checkpoints").is_dir() else src)
+            if found is None:
+                raise CaseError(key, f"no valid checkpoint in {src}")
+            path, st = found
+        else:
+            path = src
+            try:
+                st = read_checkpoint(src)
+            except (OSError, KeyError, ValueError) as e:
+                raise CaseError(key, f"{src}: not a readable checkpoint ({e})") from None
+        try:
+            self.system.set_state(st["system"])
+        except (KeyError, ValueError) as e:
+            raise CaseError(key, f"{path.name}: particle state does not fit this case ({e}); "
+                                 "the walls must be the same") from None
+        if self.inlet is not None and "inlet" in st:
+            self.inlet.set_state(st["inlet"])
+        self.counters.update({k: type(self.counters[k])(v) for k, v in st.get("counters", {}).items()
+                              if k in self.counters})
+        t = self.system.time
+        for s in self.schedules.values():
+            s.k = max(0, int(math.ceil((t - s.start) / s.interval - 1e-9))) if s.interval > 0 else 0
+        gas_note = ""
+        if self.gas is not None:
+            if "gas" in st:
+                try:
+                    self.gas.set_state(st["gas"])
+                    gas_note = "; gas fields from the checkpoint"
+                except (KeyError, ValueError) as e:
+                    gas_note = f"; gas starts afresh (state does not fit: {e})"
+            else:
+                gas_note = "; gas starts afresh (the source run had none)"
+        self.branched_from = str(path)
+        self.log.info("branched from %s at t = %.6g s (step %d, %d particles)%s", path, t,
+                      self.system.step_count, self.system.n, gas_note)
 
     def _install_signals(self):
         if threading.current_thread() is not threading.main_thread():
