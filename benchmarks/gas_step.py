@@ -34,6 +34,11 @@ import os
 # chute step).  Set before numpy is imported; an explicit setting in the environment wins.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
+# cfddem._jit first: it selects numba's OpenMP threading layer (passive waiting) before numba
+# is imported anywhere; with the TBB layer, which numba picks otherwise, two threads made the
+# multigrid solve 3-30x slower on the shared machine (measured).
+import cfddem._jit  # noqa: E402, F401
+
 import argparse  # noqa: E402
 import time  # noqa: E402
 
@@ -118,10 +123,10 @@ class Timers:
         acc = self.t[key]
 
         def timed(*a, **k):
-            w0, c0 = time.perf_counter(), time.thread_time()
+            w0, c0 = time.perf_counter(), time.process_time()
             out = fn(*a, **k)
             acc[0] += time.perf_counter() - w0
-            acc[1] += time.thread_time() - c0
+            acc[1] += time.process_time() - c0
             return out
 
         return timed
@@ -144,7 +149,7 @@ def run(make, fields, steps, dt, warm=3):
     ps.solve = tm.wrap("pressure", orig[3])
     its, defects = [], []
     try:
-        w0, c0 = time.perf_counter(), time.thread_time()
+        w0, c0 = time.perf_counter(), time.process_time()
         for i in range(steps):
             s.set_porosity(eps[1 + warm + i])
             info = s.step(dt, drag_K=K, drag_Up=Up)
@@ -152,13 +157,14 @@ def run(make, fields, steps, dt, warm=3):
                 raise SystemExit(info.message)
             its.append(info.pressure_iterations)
             defects.append(info.max_divergence)
-        wall, cpu = time.perf_counter() - w0, time.thread_time() - c0
+        wall, cpu = time.perf_counter() - w0, time.process_time() - c0
     finally:
         solver_mod.momentum_rhs, solver_mod.predictor_kernel = orig[0], orig[1]
         ps.set_coefficients, ps.solve = orig[2], orig[3]
     f = 1e3 / steps
     tp, tq = tm.t["predictor"], tm.t["pressure"]
     return dict(wall=wall * f, cpu=cpu * f, pred=tp[1] * f, pres=tq[1] * f, rest=(cpu - tp[1] - tq[1]) * f,
+                wpred=tp[0] * f, wpres=tq[0] * f,
                 its=float(np.mean(its)), maxits=int(np.max(its)), defect=float(np.max(defects)), cells=g.ncells)
 
 
@@ -167,21 +173,35 @@ def fmt_range(vals, w=6, p=1):
     return f"{lo:{w}.{p}f}" if hi - lo < 0.05 * max(abs(hi), 1e-12) else f"{lo:.{p}f}-{hi:.{p}f}".rjust(w)
 
 
-def bench_pair(name, make, fields, steps, dt, repeats):
-    res = {"mg": [], "amg": []}
+def bench_pair(name, make, fields, steps, dt, repeats, threads=(1,), solvers=("mg", "amg")):
+    """Time every (solver, thread count) configuration ``repeats`` times, alternating them so
+    that all see the same machine load; print ranges and the ratios measured in the same
+    round (amg/mg at the first thread count, t threads against 1 for mg)."""
+    confs = [(sv, nt) for sv in solvers for nt in (threads if sv == "mg" else threads[:1])]
+    res = {c: [] for c in confs}
     for _ in range(repeats):
-        for solver in ("mg", "amg"):
-            res[solver].append(run(lambda: make(solver), fields, steps, dt))
-    for solver in ("mg", "amg"):
-        r = res[solver]
-        print(f"{name:>14s} {solver:>4s}: wall {fmt_range([x['wall'] for x in r], 12)} ms/step, "
+        for sv, nt in confs:
+            set_threads(nt)
+            res[(sv, nt)].append(run(lambda: make(sv), fields, steps, dt))
+    set_threads(threads[0])
+    for sv, nt in confs:
+        r = res[(sv, nt)]
+        print(f"{name:>14s} {sv:>4s} {nt}T: wall {fmt_range([x['wall'] for x in r], 12)} ms/step, "
               f"CPU {fmt_range([x['cpu'] for x in r], 12)} ms (predictor {fmt_range([x['pred'] for x in r])}, "
-              f"pressure {fmt_range([x['pres'] for x in r])}, rest {fmt_range([x['rest'] for x in r])}); "
+              f"pressure {fmt_range([x['pres'] for x in r])}, rest {fmt_range([x['rest'] for x in r])}, "
+              f"wall: predictor {fmt_range([x['wpred'] for x in r])}, pressure {fmt_range([x['wpres'] for x in r])}); "
               f"pressure iterations {r[0]['its']:.1f} (max {r[0]['maxits']}), mass defect {r[0]['defect']:.1e}")
-    ratio_cpu = [a["cpu"] / m["cpu"] for a, m in zip(res["amg"], res["mg"])]
-    ratio_p = [a["pres"] / m["pres"] for a, m in zip(res["amg"], res["mg"])]
-    print(f"{name:>14s} amg/mg: step (CPU) x{fmt_range(ratio_cpu, 4)}, pressure x{fmt_range(ratio_p, 4)}")
-    return res
+    t0 = threads[0]
+    if "amg" in solvers and "mg" in solvers:
+        ratio_cpu = [a["cpu"] / m["cpu"] for a, m in zip(res[("amg", t0)], res[("mg", t0)])]
+        ratio_p = [a["pres"] / m["pres"] for a, m in zip(res[("amg", t0)], res[("mg", t0)])]
+        print(f"{name:>14s} amg/mg ({t0}T): step (CPU) x{fmt_range(ratio_cpu, 4)}, pressure x{fmt_range(ratio_p, 4)}")
+    if "mg" in solvers:
+        for nt in threads[1:]:
+            rw = [a["wall"] / b["wall"] for a, b in zip(res[("mg", t0)], res[("mg", nt)])]
+            rc = [a["cpu"] / b["cpu"] for a, b in zip(res[("mg", t0)], res[("mg", nt)])]
+            print(f"{name:>14s} mg {t0}T/{nt}T: wall x{fmt_range(rw, 4, 2)}, CPU (all threads) x{fmt_range(rc, 4, 2)}")
+    return {f"{sv}{nt}": v for (sv, nt), v in res.items()}
 
 
 def tol_sweep(steps):
@@ -199,13 +219,16 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--steps", type=int, default=20)
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--threads", type=int, default=1, help="numba threads (0: all)")
+    ap.add_argument("--threads", default="1,2", help="numba thread counts for mg, comma-separated (amg: the first)")
+    ap.add_argument("--no-amg", action="store_true", help="time the multigrid solver only")
     ap.add_argument("--tol", type=float, default=1e-8)
     ap.add_argument("--no-cube", action="store_true", help="skip the 64^3 grid")
     ap.add_argument("--tol-sweep", action="store_true", help="only the tolerance sweep (mg, chute bed)")
     a = ap.parse_args(argv)
-    nt = set_threads(a.threads)
-    print(f"numba threads: {nt}, pressure tolerance {a.tol:g}, {a.steps} steps x {a.repeats} repeats; "
+    threads = tuple(int(t) for t in a.threads.split(","))
+    solvers = ("mg",) if a.no_amg else ("mg", "amg")
+    nt = set_threads(threads[0])
+    print(f"numba threads: {threads}, pressure tolerance {a.tol:g}, {a.steps} steps x {a.repeats} repeats; "
           f"times: range over the repeats")
     if a.tol_sweep:
         tol_sweep(a.steps)
@@ -216,14 +239,15 @@ def main(argv=None):
     out = {}
     for kind in ("eps1", "bed"):
         out[kind] = bench_pair(f"chute {kind}", lambda sv: chute_solver(tol=a.tol, solver=sv),
-                               chute_fields(g, kind, n), a.steps, dt, a.repeats)
+                               chute_fields(g, kind, n), a.steps, dt, a.repeats, threads, solvers)
     if not a.no_cube:
         gc, _ = cube_solver()
         cs = max(3, a.steps // 4)
         out["cube"] = bench_pair("64^3", lambda sv: cube_solver(tol=a.tol, solver=sv),
-                                 cube_fields(gc, cs + 4, 2e-3), cs, 2e-3, max(1, a.repeats - 1))
-        for sv in ("mg", "amg"):
-            c = min(x["cpu"] for x in out["cube"][sv]) / min(x["cpu"] for x in out["bed"][sv])
+                                 cube_fields(gc, cs + 4, 2e-3), cs, 2e-3, max(1, a.repeats - 1), threads, solvers)
+        for sv in solvers:
+            key = f"{sv}{threads[0]}"
+            c = min(x["cpu"] for x in out["cube"][key]) / min(x["cpu"] for x in out["bed"][key])
             print(f"cost growth {sv}: cells x{gc.ncells / g.ncells:.1f} -> CPU time x{c:.1f}")
 
 

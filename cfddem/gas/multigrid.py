@@ -14,8 +14,10 @@ the same.
 Hierarchy (built once per grid, in Python):
 
 * cell-centred coarsening by 2 along each axis whose cell width is at most
-  ``coarsen_ratio`` (1.5) times the smallest one (semi-coarsening keeps the coarse cells
-  roughly isotropic, so point Gauss-Seidel still smooths); coarse cell I covers fine cells 2I and 2I+1, and an odd
+  ``coarsen_ratio`` (2.0) times the smallest one (semi-coarsening keeps the coarse cells
+  roughly isotropic, so point Gauss-Seidel still smooths; on the chute, 5 x 3 x 6 mm cells,
+  2.0 coarsens all three axes at once: 8 CG iterations instead of 7 with 1.5, but no
+  16 x 8 x 150 level, 13 % less solve time, measured); coarse cell I covers fine cells 2I and 2I+1, and an odd
   count leaves the last coarse cell with one fine cell (ceil(n/2) coarse cells: coarse
   grids may be non-uniform, all widths and centre distances are tracked per axis);
 * until at most ``coarse_max`` cells remain (or no axis can be coarsened); the coarsest
@@ -62,7 +64,7 @@ import numpy as np
 
 from numba import uint64 as U
 
-from cfddem._jit import kernel
+from cfddem._jit import kernel, parallel_kernel, prange
 from cfddem.gas.pressure import SolveInfo
 
 _KIND = {"neumann": 0, "dirichlet": 1, "periodic": 2}
@@ -72,12 +74,13 @@ SIDES = ("x-", "x+", "y-", "y+", "z-", "z+")
 # ------------------------------------------------------------------------------------------
 # compiled kernels: level l occupies cells off..off+nx*ny*nz of every level array, C order
 # ------------------------------------------------------------------------------------------
-@kernel
+@parallel_kernel
 def _fine_coefficients(ax, ay, az, sc, dirich, periodic, cE, cN, cT, dX, dY, dZ):
     """Level-0 weights (volume-scaled): cE[U(c)] couples c to its +x neighbour (wrapping), zero
-    at non-periodic +x sides; dX: Dirichlet boundary terms.  sc[d] = V / h_d^2."""
+    at non-periodic +x sides; dX: Dirichlet boundary terms.  sc[d] = V / h_d^2.  x planes in
+    parallel (each cell writes its own entries)."""
     nx, ny, nz = ax.shape[0] - 1, ay.shape[1] - 1, az.shape[2] - 1
-    for i in range(nx):
+    for i in prange(nx):
         for j in range(ny):
             for k in range(nz):
                 c = (i * ny + j) * nz + k
@@ -229,62 +232,138 @@ def _ax(c, cm, cp, dxm, dxp, dym, dyp, cE, cN, cT, dg, x):
 
 
 @kernel
-def _gs_sweep(nx, ny, nz, off, cE, cN, cT, dg, idg, x, b, first, reverse):
+def _gs_row(i, nx, ny, nz, off, cE, cN, cT, dg, idg, x, b, col, reverse, zero):
+    """Gauss-Seidel updates of the cells of colour ``col`` in the x-row (plane) i, in
+    lexicographic (j, k) order or in exactly the reverse order.  Within one colour the rows
+    are independent (x neighbours have the other colour) except across an odd periodic x
+    wrap, which :func:`_gs_colour_par` orders explicitly.  ``zero``: x is zero on entry
+    everywhere (the first colour of the first sweep from a zero guess), so the update is
+    x = idg b, exactly what the full formula gives then."""
+    im = i - 1 if i > 0 else nx - 1
+    ip = i + 1 if i < nx - 1 else 0
+    dxm = (im - i) * ny * nz
+    dxp = (ip - i) * ny * nz
+    for jj in range(ny):
+        j = ny - 1 - jj if reverse else jj
+        jm = j - 1 if j > 0 else ny - 1
+        jp = j + 1 if j < ny - 1 else 0
+        k0 = (i + j + col) & 1
+        row = off + (i * ny + j) * nz
+        dym = (jm - j) * nz
+        dyp = (jp - j) * nz
+        klast = k0 + 2 * ((nz - 1 - k0) // 2)  # last k of this colour (< k0: none)
+        if klast < k0:
+            continue
+        if zero:
+            for kk in range(k0, klast + 1, 2):
+                c = row + kk
+                x[U(c)] = b[U(c)] * idg[U(c)]
+            continue
+        # interior cells of this colour: k in [kin0, kin1] (no z wrap)
+        kin0 = k0 if k0 > 0 else 2
+        kin1 = klast if klast < nz - 1 else klast - 2
+        first_wrap = k0 == 0
+        last_wrap = klast == nz - 1 and klast > 0
+        for step in range(3):
+            part = 2 - step if reverse else step
+            if part == 0:
+                if first_wrap:
+                    c = row
+                    cp = row + 1 if nz > 1 else row
+                    x[U(c)] += (b[U(c)] - _ax(c, row + nz - 1, cp, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)) * idg[U(c)]
+            elif part == 1:
+                if kin1 >= kin0:
+                    if reverse:
+                        for kk in range(kin1, kin0 - 1, -2):
+                            c = row + kk
+                            x[U(c)] += (b[U(c)] - _ax(c, c - 1, c + 1, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)) * idg[U(c)]
+                    else:
+                        for kk in range(kin0, kin1 + 1, 2):
+                            c = row + kk
+                            x[U(c)] += (b[U(c)] - _ax(c, c - 1, c + 1, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)) * idg[U(c)]
+            else:
+                if last_wrap:
+                    c = row + nz - 1
+                    x[U(c)] += (b[U(c)] - _ax(c, c - 1, row, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)) * idg[U(c)]
+
+
+@parallel_kernel
+def _gs_colour_par(nx, ny, nz, off, cE, cN, cT, dg, idg, x, b, col, reverse, xdep, zero):
+    """One colour of a Gauss-Seidel sweep, rows (x planes) in parallel.  ``xdep``: the x axis
+    is periodic with an odd count, so rows nx-1 and 0 hold neighbours of the same colour; row
+    nx-1 is then done last (forward) or first (reverse), as in the serial lexicographic
+    order, so the result is that of the serial sweep whatever the thread count."""
+    n = nx - 1 if xdep else nx
+    if xdep and reverse:
+        _gs_row(nx - 1, nx, ny, nz, off, cE, cN, cT, dg, idg, x, b, col, reverse, zero)
+    for i in prange(n):
+        _gs_row(i, nx, ny, nz, off, cE, cN, cT, dg, idg, x, b, col, reverse, zero)
+    if xdep and not reverse:
+        _gs_row(nx - 1, nx, ny, nz, off, cE, cN, cT, dg, idg, x, b, col, reverse, zero)
+
+
+@kernel
+def _gs_sweep(nx, ny, nz, off, cE, cN, cT, dg, idg, x, b, first, reverse, xdep, par, zero):
     """One red-black Gauss-Seidel sweep (over-relaxed by the omega folded into idg): colour
     ``first`` then the other, in lexicographic cell order, or in exactly the reverse cell
     order if ``reverse`` (its adjoint when called with the other ``first``).  Periodic
-    neighbours wrap; non-periodic boundary weights are 0."""
+    neighbours wrap; non-periodic boundary weights are 0.  ``par``: rows in parallel
+    (:func:`_gs_colour_par`, same result).  ``zero``: x = 0 on entry (the first colour then
+    costs one multiplication per cell)."""
     for q in range(2):
         col = (first + q) & 1
-        for ii in range(nx):
-            i = nx - 1 - ii if reverse else ii
-            im = i - 1 if i > 0 else nx - 1
-            ip = i + 1 if i < nx - 1 else 0
-            for jj in range(ny):
-                j = ny - 1 - jj if reverse else jj
-                jm = j - 1 if j > 0 else ny - 1
-                jp = j + 1 if j < ny - 1 else 0
-                k0 = (i + j + col) & 1
-                row = off + (i * ny + j) * nz
-                dxm = (im - i) * ny * nz
-                dxp = (ip - i) * ny * nz
-                dym = (jm - j) * nz
-                dyp = (jp - j) * nz
-                klast = k0 + 2 * ((nz - 1 - k0) // 2)  # last k of this colour (< k0: none)
-                if klast < k0:
-                    continue
-                # interior cells of this colour: k in [kin0, kin1] (no z wrap)
-                kin0 = k0 if k0 > 0 else 2
-                kin1 = klast if klast < nz - 1 else klast - 2
-                first_wrap = k0 == 0
-                last_wrap = klast == nz - 1 and klast > 0
-                for step in range(3):
-                    part = 2 - step if reverse else step
-                    if part == 0:
-                        if first_wrap:
-                            c = row
-                            cp = row + 1 if nz > 1 else row
-                            x[U(c)] += (b[U(c)] - _ax(c, row + nz - 1, cp, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)) * idg[U(c)]
-                    elif part == 1:
-                        if kin1 >= kin0:
-                            if reverse:
-                                for kk in range(kin1, kin0 - 1, -2):
-                                    c = row + kk
-                                    x[U(c)] += (b[U(c)] - _ax(c, c - 1, c + 1, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)) * idg[U(c)]
-                            else:
-                                for kk in range(kin0, kin1 + 1, 2):
-                                    c = row + kk
-                                    x[U(c)] += (b[U(c)] - _ax(c, c - 1, c + 1, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)) * idg[U(c)]
-                    else:
-                        if last_wrap:
-                            c = row + nz - 1
-                            x[U(c)] += (b[U(c)] - _ax(c, c - 1, row, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)) * idg[U(c)]
+        z = zero and q == 0
+        if par:
+            _gs_colour_par(nx, ny, nz, off, cE, cN, cT, dg, idg, x, b, col, reverse, xdep, z)
+        else:
+            for ii in range(nx):
+                i = nx - 1 - ii if reverse else ii
+                _gs_row(i, nx, ny, nz, off, cE, cN, cT, dg, idg, x, b, col, reverse, z)
+
+
+@kernel
+def _rowdot(a, b, o, n):
+    """sum_{c=o}^{o+n-1} a_c b_c in a fixed order (four interleaved partial sums, added at the
+    end: deterministic, and four independent chains instead of one)."""
+    s0 = 0.0
+    s1 = 0.0
+    s2 = 0.0
+    s3 = 0.0
+    n4 = n - n % 4
+    for c in range(o, o + n4, 4):
+        s0 += a[U(c)] * b[U(c)]
+        s1 += a[U(c + 1)] * b[U(c + 1)]
+        s2 += a[U(c + 2)] * b[U(c + 2)]
+        s3 += a[U(c + 3)] * b[U(c + 3)]
+    for c in range(o + n4, o + n):
+        s0 += a[U(c)] * b[U(c)]
+    return (s0 + s1) + (s2 + s3)
 
 
 @kernel
 def _apply_level(nx, ny, nz, off, cE, cN, cT, dg, x, b, y, mode):
     """mode 0: y = A x; mode 1: y = b - A x (the residual), on the level at offset off."""
     for i in range(nx):
+        _apply_row(i, nx, ny, nz, off, cE, cN, cT, dg, x, b, y, mode)
+
+
+@parallel_kernel
+def _apply_par(nx, ny, nz, off, cE, cN, cT, dg, x, b, y, mode, want, part):
+    """:func:`_apply_level` with the x planes in parallel; ``want`` 1: part[i] = sum of y^2
+    over plane i, 2: sum of x y (partial sums of a fixed order: the same for any thread count)."""
+    m = ny * nz
+    for i in prange(nx):
+        _apply_row(i, nx, ny, nz, off, cE, cN, cT, dg, x, b, y, mode)
+        if want == 1:
+            part[i] = _rowdot(y, y, off + i * m, m)
+        elif want == 2:
+            part[i] = _rowdot(x, y, off + i * m, m)
+
+
+@kernel
+def _apply_row(i, nx, ny, nz, off, cE, cN, cT, dg, x, b, y, mode):
+    """The x plane i of :func:`_apply_level`."""
+    if True:
         im = i - 1 if i > 0 else nx - 1
         ip = i + 1 if i < nx - 1 else 0
         for j in range(ny):
@@ -317,29 +396,28 @@ def _apply_level(nx, ny, nz, off, cE, cN, cT, dg, x, b, y, mode):
 
 
 @kernel
-def _restrict_axis(src, dst, n0, n1, n2, m, axis, AXI, AXF, o):
-    """dst = R_axis src: sum the cells of ``src`` (n0, n1, n2) along ``axis`` into the m coarse
-    cells (dst shape with that extent replaced by m), weights of P^T."""
-    if axis == 0:
-        tot = m * n1 * n2
-    elif axis == 1:
-        tot = n0 * m * n2
-    else:
-        tot = n0 * n1 * m
-    for c in range(tot):
-        dst[U(c)] = 0.0
+def _restrict_rows(src, dst, n0, n1, n2, m, axis, AXI, AXF, o, a0, a1):
+    """dst = R_axis src for the outer indices [a0, a1): sum the cells of ``src`` (n0, n1, n2)
+    along ``axis`` into the m coarse cells (dst shape with that extent replaced by m),
+    weights of P^T.  The outer index is j for axis 0 (dst[:, j, :] is then owned by j) and i
+    otherwise; every dst entry gets its contributions in increasing fine index."""
     if axis == 2:
-        for ij in range(n0 * n1):
-            rs = ij * n2
-            rd = ij * m
-            for k in range(n2):
-                v = src[U(rs + k)]
-                dst[U(rd + AXI[1, 2, U(o + k)])] += AXF[2, 2, U(o + k)] * v
-                w2 = AXF[3, 2, U(o + k)]
-                if w2 != 0.0:
-                    dst[U(rd + AXI[2, 2, U(o + k)])] += w2 * v
+        for i in range(a0, a1):
+            for j in range(n1):
+                rs = (i * n1 + j) * n2
+                rd = (i * n1 + j) * m
+                for K in range(m):
+                    dst[U(rd + K)] = 0.0
+                for k in range(n2):
+                    v = src[U(rs + k)]
+                    dst[U(rd + AXI[1, 2, U(o + k)])] += AXF[2, 2, U(o + k)] * v
+                    w2 = AXF[3, 2, U(o + k)]
+                    if w2 != 0.0:
+                        dst[U(rd + AXI[2, 2, U(o + k)])] += w2 * v
     elif axis == 1:
-        for i in range(n0):
+        for i in range(a0, a1):
+            for c in range(i * m * n2, (i + 1) * m * n2):
+                dst[U(c)] = 0.0
             for j in range(n1):
                 rs = (i * n1 + j) * n2
                 w1 = AXF[2, 1, U(o + j)]
@@ -352,25 +430,48 @@ def _restrict_axis(src, dst, n0, n1, n2, m, axis, AXI, AXF, o):
                     for k in range(n2):
                         dst[U(rd2 + k)] += w2 * src[U(rs + k)]
     else:
-        for i in range(n0):
-            w1 = AXF[2, 0, U(o + i)]
-            w2 = AXF[3, 0, U(o + i)]
-            rd1 = AXI[1, 0, U(o + i)] * n1 * n2
-            rd2 = AXI[2, 0, U(o + i)] * n1 * n2
-            rs = i * n1 * n2
-            for c in range(n1 * n2):
-                dst[U(rd1 + c)] += w1 * src[U(rs + c)]
-            if w2 != 0.0:
-                for c in range(n1 * n2):
-                    dst[U(rd2 + c)] += w2 * src[U(rs + c)]
+        for j in range(a0, a1):
+            for I in range(m):
+                rd = (I * n1 + j) * n2
+                for k in range(n2):
+                    dst[U(rd + k)] = 0.0
+            for i in range(n0):
+                w1 = AXF[2, 0, U(o + i)]
+                w2 = AXF[3, 0, U(o + i)]
+                rd1 = (AXI[1, 0, U(o + i)] * n1 + j) * n2
+                rd2 = (AXI[2, 0, U(o + i)] * n1 + j) * n2
+                rs = (i * n1 + j) * n2
+                for k in range(n2):
+                    dst[U(rd1 + k)] += w1 * src[U(rs + k)]
+                if w2 != 0.0:
+                    for k in range(n2):
+                        dst[U(rd2 + k)] += w2 * src[U(rs + k)]
+
+
+@parallel_kernel
+def _restrict_par(src, dst, n0, n1, n2, m, axis, AXI, AXF, o):
+    """:func:`_restrict_axis` with the outer index in parallel (no shared dst entries)."""
+    n = n1 if axis == 0 else n0
+    for a in prange(n):
+        _restrict_rows(src, dst, n0, n1, n2, m, axis, AXI, AXF, o, a, a + 1)
 
 
 @kernel
-def _prolong_axis(src, dst, n0, n1, n2, axis, AXI, AXF, o, add):
-    """dst (n0, n1, n2) (+)= P_axis src, src having the coarse extent along ``axis``."""
+def _restrict_axis(src, dst, n0, n1, n2, m, axis, AXI, AXF, o, par):
+    """dst = R_axis src (see :func:`_restrict_rows`); ``par``: in parallel (same result)."""
+    if par:
+        _restrict_par(src, dst, n0, n1, n2, m, axis, AXI, AXF, o)
+    else:
+        _restrict_rows(src, dst, n0, n1, n2, m, axis, AXI, AXF, o, 0, n1 if axis == 0 else n0)
+
+
+@kernel
+def _prolong_rows(src, dst, n0, n1, n2, axis, AXI, AXF, o, add, i0, i1):
+    """dst (n0, n1, n2) (+)= P_axis src for the fine x planes [i0, i1), src having the
+    coarse extent along ``axis``."""
     if axis == 2:
         m = src.size // (n0 * n1) if n0 * n1 > 0 else 0
-        for ij in range(n0 * n1):
+        for ij in range(i0 * n1, i1 * n1):
             rs = ij * m
             rd = ij * n2
             for k in range(n2):
@@ -383,12 +484,12 @@ def _prolong_axis(src, dst, n0, n1, n2, axis, AXI, AXF, o, add):
                 else:
                     dst[U(rd + k)] = v
     elif axis == 1:
-        for i in range(n0):
+        mm = AXI[0, 1, U(o + n1 - 1)] + 1  # coarse extent
+        for i in range(i0, i1):
             for j in range(n1):
                 w1 = AXF[2, 1, U(o + j)]
                 w2 = AXF[3, 1, U(o + j)]
                 rd = (i * n1 + j) * n2
-                mm = AXI[0, 1, U(o + n1 - 1)] + 1  # coarse extent
                 r1 = (i * mm + AXI[1, 1, U(o + j)]) * n2
                 r2 = (i * mm + AXI[2, 1, U(o + j)]) * n2
                 if w2 != 0.0:
@@ -405,7 +506,7 @@ def _prolong_axis(src, dst, n0, n1, n2, axis, AXI, AXF, o, add):
                         else:
                             dst[U(rd + k)] = w1 * src[U(r1 + k)]
     else:
-        for i in range(n0):
+        for i in range(i0, i1):
             w1 = AXF[2, 0, U(o + i)]
             w2 = AXF[3, 0, U(o + i)]
             r1 = AXI[1, 0, U(o + i)] * n1 * n2
@@ -419,6 +520,22 @@ def _prolong_axis(src, dst, n0, n1, n2, axis, AXI, AXF, o, add):
                     dst[U(rd + c)] += v
                 else:
                     dst[U(rd + c)] = v
+
+
+@parallel_kernel
+def _prolong_par(src, dst, n0, n1, n2, axis, AXI, AXF, o, add):
+    for i in prange(n0):
+        _prolong_rows(src, dst, n0, n1, n2, axis, AXI, AXF, o, add, i, i + 1)
+
+
+@kernel
+def _prolong_axis(src, dst, n0, n1, n2, axis, AXI, AXF, o, add, par):
+    """dst (n0, n1, n2) (+)= P_axis src (see :func:`_prolong_rows`); ``par``: x planes in
+    parallel (each writes its own entries)."""
+    if par:
+        _prolong_par(src, dst, n0, n1, n2, axis, AXI, AXF, o, add)
+    else:
+        _prolong_rows(src, dst, n0, n1, n2, axis, AXI, AXF, o, add, 0, n0)
 
 
 @kernel
@@ -456,11 +573,14 @@ def _chebyshev(nx, ny, nz, off, cE, cN, cT, dg, x, r, d, q, deg, lmin, lmax, kee
 
 
 @kernel
-def _vcycle(LV, AOFF, AXI, AXF, cE, cN, cT, dg, idg, dense, x, b, r, t1, t2, dw, qw, nu, deg, lmin, rin, zout):
+def _vcycle(LV, LF, AOFF, AXI, AXF, cE, cN, cT, dg, idg, dense, x, b, r, t1, t2, dw, qw, nu, deg, lmin, rin, zout, part):
     """zout = M rin: one symmetric V-cycle from a zero initial guess (rin, zout: level 0).
     t1, t2: work arrays of level-0 size for the axis-by-axis transfers.  deg = 0: ``nu``
     red-black Gauss-Seidel sweeps; deg > 0: Chebyshev smoothing of degree deg on
-    [lmin, 2] (dw, qw: its work arrays)."""
+    [lmin, 2] (dw, qw: its work arrays).  LF[l] = (par, xdep, oddp): level l's smoother,
+    residual and transfers run with the x planes in parallel (par = 1; results do not depend
+    on it), its x axis is periodic with an odd count (xdep, see :func:`_gs_colour_par`), some
+    axis is (then the first colour of the first sweep gets no zero-guess shortcut)."""
     L = LV.shape[0]
     n0 = LV[0, 0] * LV[0, 1] * LV[0, 2]
     for c in range(n0):
@@ -475,14 +595,19 @@ def _vcycle(LV, AOFF, AXI, AXF, cE, cN, cT, dg, idg, dense, x, b, r, t1, t2, dw,
                 r[c] = b[c]
             _chebyshev(nx, ny, nz, off, cE, cN, cT, dg, x, r, dw, qw, deg, lmin, 2.0, True)
         else:
+            par, xdep = LF[l, 0] == 1, LF[l, 1] == 1
             for s in range(nu):
-                _gs_sweep(nx, ny, nz, off, cE, cN, cT, dg, idg, x, b, 0, False)
-            _apply_level(nx, ny, nz, off, cE, cN, cT, dg, x, b, r, 1)
+                _gs_sweep(nx, ny, nz, off, cE, cN, cT, dg, idg, x, b, 0, False, xdep, par, s == 0 and LF[l, 2] == 0)
+            if par:
+                _apply_par(nx, ny, nz, off, cE, cN, cT, dg, x, b, r, 1, 0, part)
+            else:
+                _apply_level(nx, ny, nz, off, cE, cN, cT, dg, x, b, r, 1)
         # restriction b_{l+1} = P^T r_l, one axis at a time (z, y, x)
+        par = LF[l, 0] == 1
         ox, oy, oz = AOFF[l, 0], AOFF[l, 1], AOFF[l, 2]
-        _restrict_axis(r[off:off + nx * ny * nz], t1, nx, ny, nz, mz, 2, AXI, AXF, oz)
-        _restrict_axis(t1, t2, nx, ny, mz, my, 1, AXI, AXF, oy)
-        _restrict_axis(t2, b[offc:offc + mx * my * mz], nx, my, mz, mx, 0, AXI, AXF, ox)
+        _restrict_axis(r[off:off + nx * ny * nz], t1, nx, ny, nz, mz, 2, AXI, AXF, oz, par)
+        _restrict_axis(t1, t2, nx, ny, mz, my, 1, AXI, AXF, oy, par)
+        _restrict_axis(t2, b[offc:offc + mx * my * mz], nx, my, mz, mx, 0, AXI, AXF, ox, par)
     # coarsest: Cholesky solve
     nx, ny, nz, off = LV[L - 1, 0], LV[L - 1, 1], LV[L - 1, 2], LV[L - 1, 3]
     n = nx * ny * nz
@@ -500,16 +625,17 @@ def _vcycle(LV, AOFF, AXI, AXF, cE, cN, cT, dg, idg, dense, x, b, r, t1, t2, dw,
         nx, ny, nz, off = LV[l, 0], LV[l, 1], LV[l, 2], LV[l, 3]
         mx, my, mz, offc = LV[l + 1, 0], LV[l + 1, 1], LV[l + 1, 2], LV[l + 1, 3]
         ox, oy, oz = AOFF[l, 0], AOFF[l, 1], AOFF[l, 2]
+        par, xdep = LF[l, 0] == 1, LF[l, 1] == 1
         # prolongation x_l += P x_{l+1}, one axis at a time (x, y, z)
-        _prolong_axis(x[offc:offc + mx * my * mz], t2[:nx * my * mz], nx, my, mz, 0, AXI, AXF, ox, False)
-        _prolong_axis(t2[:nx * my * mz], t1[:nx * ny * mz], nx, ny, mz, 1, AXI, AXF, oy, False)
-        _prolong_axis(t1[:nx * ny * mz], x[off:off + nx * ny * nz], nx, ny, nz, 2, AXI, AXF, oz, True)
+        _prolong_axis(x[offc:offc + mx * my * mz], t2[:nx * my * mz], nx, my, mz, 0, AXI, AXF, ox, False, par)
+        _prolong_axis(t2[:nx * my * mz], t1[:nx * ny * mz], nx, ny, mz, 1, AXI, AXF, oy, False, par)
+        _prolong_axis(t1[:nx * ny * mz], x[off:off + nx * ny * nz], nx, ny, nz, 2, AXI, AXF, oz, True, par)
         if deg > 0:
             _apply_level(nx, ny, nz, off, cE, cN, cT, dg, x, b, r, 1)
             _chebyshev(nx, ny, nz, off, cE, cN, cT, dg, x, r, dw, qw, deg, lmin, 2.0, False)
         else:
             for s in range(nu):
-                _gs_sweep(nx, ny, nz, off, cE, cN, cT, dg, idg, x, b, 1, True)
+                _gs_sweep(nx, ny, nz, off, cE, cN, cT, dg, idg, x, b, 1, True, xdep, par, False)
     for c in range(n0):
         zout[c] = x[c]
 
@@ -520,21 +646,73 @@ def _matvec(nx, ny, nz, cE, cN, cT, dg, x, y):
     _apply_level(nx, ny, nz, 0, cE, cN, cT, dg, x, x, y, 0)
 
 
+@parallel_kernel
+def _pdot(a, b, nx, m, part):
+    """part[i] = sum over x plane i (m cells) of a b."""
+    for i in prange(nx):
+        part[i] = _rowdot(a, b, i * m, m)
+
+
+@parallel_kernel
+def _pupdate(x, r, p, q, alpha, nx, m, part):
+    """x += alpha p, r -= alpha q; part[i] = sum over plane i of r^2."""
+    for i in prange(nx):
+        for c in range(i * m, (i + 1) * m):
+            x[U(c)] += alpha * p[U(c)]
+            r[U(c)] -= alpha * q[U(c)]
+        part[i] = _rowdot(r, r, i * m, m)
+
+
+@parallel_kernel
+def _pxpby(y, x, b, nx, m):
+    """y = x + b y (the CG direction update p = z + beta p)."""
+    for i in prange(nx):
+        for c in range(i * m, (i + 1) * m):
+            y[U(c)] = x[U(c)] + b * y[U(c)]
+
+
+@parallel_kernel
+def _pshift(z, s, nx, m):
+    for i in prange(nx):
+        for c in range(i * m, (i + 1) * m):
+            z[U(c)] -= s
+
+
+@parallel_kernel
+def _presid(nx, ny, nz, cE, cN, cT, dg, x, b, r, part):
+    """r = b - A x on level 0, part[i] = sum over plane i of r^2."""
+    m = ny * nz
+    for i in prange(nx):
+        _apply_row(i, nx, ny, nz, 0, cE, cN, cT, dg, x, b, r, 1)
+        part[i] = _rowdot(r, r, i * m, m)
+
+
 @kernel
-def _pcg(LV, AOFF, AXI, AXF, cE, cN, cT, dg, vE, vN, vT, vdg, vidg, dense, xl, bl, rl, t1, t2, dw, qw, nu, deg,
+def _psum(part, n):
+    """Serial sum of the plane partial sums in index order (thread-count independent)."""
+    s = 0.0
+    for i in range(n):
+        s += part[i]
+    return s
+
+
+@kernel
+def _pcg(LV, LF, AOFF, AXI, AXF, cE, cN, cT, dg, vE, vN, vT, vdg, vidg, dense, xl, bl, rl, t1, t2, dw, qw, nu, deg,
          lmin, singular, tol, maxiter,
-         bvec, xvec, r, z, p, q):
+         bvec, xvec, r, z, p, q, part, ones):
     """Multigrid-preconditioned CG on level 0: A xvec = bvec, from the initial xvec.
 
     Stops when the true residual ``||b - A x|| <= tol ||b||`` (the recursive residual is
     checked each iteration; on apparent convergence the true one is computed and CG
-    restarted from it if it is still too large).  Returns (iterations, relative residual)."""
+    restarted from it if it is still too large).  Returns (iterations, relative residual).
+    Vector operations and the residual run with the x planes in parallel; every inner
+    product is a serial sum of per-plane partial sums (:func:`_rowdot`), so the iterates are
+    the same for any thread count.  ``part``: nx work entries, ``ones``: a vector of ones."""
     nx, ny, nz = LV[0, 0], LV[0, 1], LV[0, 2]
     n = nx * ny * nz
-    bn = 0.0
-    for c in range(n):
-        bn += bvec[c] * bvec[c]
-    bn = np.sqrt(bn)
+    m = ny * nz
+    _pdot(bvec, bvec, nx, m, part)
+    bn = np.sqrt(_psum(part, nx))
     if bn == 0.0:
         for c in range(n):
             xvec[c] = 0.0
@@ -542,55 +720,39 @@ def _pcg(LV, AOFF, AXI, AXF, cE, cN, cT, dg, vE, vN, vT, vdg, vidg, dense, xl, b
     its = 0
     rel = 0.0
     while True:
-        _matvec(nx, ny, nz, cE, cN, cT, dg, xvec, q)
-        rn = 0.0
-        for c in range(n):
-            r[c] = bvec[c] - q[c]
-            rn += r[c] * r[c]
+        _presid(nx, ny, nz, cE, cN, cT, dg, xvec, bvec, r, part)
+        rn = _psum(part, nx)
         rel = np.sqrt(rn) / bn
         if rel <= tol or its >= maxiter or not np.isfinite(rel):
             return its, rel
-        _vcycle(LV, AOFF, AXI, AXF, vE, vN, vT, vdg, vidg, dense, xl, bl, rl, t1, t2, dw, qw, nu, deg, lmin, r, z)
+        _vcycle(LV, LF, AOFF, AXI, AXF, vE, vN, vT, vdg, vidg, dense, xl, bl, rl, t1, t2, dw, qw, nu, deg, lmin, r, z,
+                part)
         if singular:
-            m = 0.0
-            for c in range(n):
-                m += z[c]
-            m /= n
-            for c in range(n):
-                z[c] -= m
-        rz = 0.0
+            _pdot(z, ones, nx, m, part)
+            _pshift(z, _psum(part, nx) / n, nx, m)
+        _pdot(r, z, nx, m, part)
+        rz = _psum(part, nx)
         for c in range(n):
             p[c] = z[c]
-            rz += r[c] * z[c]
         while its < maxiter:
             its += 1
-            _matvec(nx, ny, nz, cE, cN, cT, dg, p, q)
-            pq = 0.0
-            for c in range(n):
-                pq += p[c] * q[c]
+            _apply_par(nx, ny, nz, 0, cE, cN, cT, dg, p, p, q, 0, 2, part)
+            pq = _psum(part, nx)
             alpha = rz / pq
-            rn = 0.0
-            for c in range(n):
-                xvec[c] += alpha * p[c]
-                r[c] -= alpha * q[c]
-                rn += r[c] * r[c]
+            _pupdate(xvec, r, p, q, alpha, nx, m, part)
+            rn = _psum(part, nx)
             if np.sqrt(rn) <= tol * bn or not np.isfinite(rn):
                 break
-            _vcycle(LV, AOFF, AXI, AXF, vE, vN, vT, vdg, vidg, dense, xl, bl, rl, t1, t2, dw, qw, nu, deg, lmin, r, z)
+            _vcycle(LV, LF, AOFF, AXI, AXF, vE, vN, vT, vdg, vidg, dense, xl, bl, rl, t1, t2, dw, qw, nu, deg, lmin,
+                    r, z, part)
             if singular:
-                m = 0.0
-                for c in range(n):
-                    m += z[c]
-                m /= n
-                for c in range(n):
-                    z[c] -= m
-            rz2 = 0.0
-            for c in range(n):
-                rz2 += r[c] * z[c]
+                _pdot(z, ones, nx, m, part)
+                _pshift(z, _psum(part, nx) / n, nx, m)
+            _pdot(r, z, nx, m, part)
+            rz2 = _psum(part, nx)
             beta = rz2 / rz
             rz = rz2
-            for c in range(n):
-                p[c] = z[c] + beta * p[c]
+            _pxpby(p, z, beta, nx, m)
 
 
 # ------------------------------------------------------------------------------------------
@@ -680,8 +842,8 @@ class MGPressureSolver:
     """
 
     def __init__(self, grid, pressure_bc: dict, *, tol: float = 1e-8, maxiter: int = 200,
-                 nu: int = 2, coarse_max: int = 128, coarsen_ratio: float = 1.5, omega: float = 1.2,
-                 chebyshev: int = 0, cheb_ratio: float = 6.0):
+                 nu: int = 2, coarse_max: int = 128, coarsen_ratio: float = 2.0, omega: float = 1.2,
+                 chebyshev: int = 0, cheb_ratio: float = 6.0, par_min: int = 4096):
         self.grid = grid
         self.pressure_bc = dict(pressure_bc)
         self.tol = float(tol)
@@ -723,6 +885,14 @@ class MGPressureSolver:
         sizes = [a * b * c for a, b, c in shapes]
         offs = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
         self._LV = np.array([[s[0], s[1], s[2], offs[l]] for l, s in enumerate(shapes)], dtype=np.int64)
+        # per level: x planes in parallel (enough cells to pay for a parallel region), and an
+        # odd periodic x axis (the smoother then orders row nx-1 explicitly)
+        self.par_min = int(par_min)
+        # and whether any axis is periodic with an odd count (the colours then touch across the
+        # wrap: no shortcut for the first colour from a zero guess)
+        oddp = [[kinds[d][0] == 2 and s[d] % 2 == 1 and s[d] > 1 for d in range(3)] for s in shapes]
+        self._LF = np.array([[1 if sz >= self.par_min else 0, int(o[0]), int(any(o))] for sz, o in zip(sizes, oddp)],
+                            dtype=np.int64)
         tot = int(offs[-1])
         # axis data, concatenated over levels per axis
         lens = [[shapes[l][d] for l in range(L - 1)] for d in range(3)]
@@ -755,6 +925,8 @@ class MGPressureSolver:
         nc = sizes[-1]
         self._dense = np.zeros((nc, nc))
         self._vec = [np.zeros(self.N) for _ in range(6)]  # b, x, r, z, p, q
+        self._part = np.zeros(max(nx, 1))  # per-plane partial sums
+        self._ones = np.ones(self.N)
         self._ready = False
 
     @property
@@ -804,9 +976,9 @@ class MGPressureSolver:
     def vcycle(self, r: np.ndarray) -> np.ndarray:
         """One V-cycle applied to a (volume-scaled) residual r: the preconditioner M r."""
         z = np.empty(self.N)
-        _vcycle(self._LV, self._AOFF, self._AXI, self._AXF, *self._v, self._dense, self._xl, self._bl, self._rl,
-                self._t1, self._t2, self._dw, self._qw, self.nu, self.chebyshev, 2.0 / self.cheb_ratio,
-                np.ascontiguousarray(r, dtype=np.float64).ravel(), z)
+        _vcycle(self._LV, self._LF, self._AOFF, self._AXI, self._AXF, *self._v, self._dense, self._xl, self._bl,
+                self._rl, self._t1, self._t2, self._dw, self._qw, self.nu, self.chebyshev, 2.0 / self.cheb_ratio,
+                np.ascontiguousarray(r, dtype=np.float64).ravel(), z, self._part)
         return z
 
     def solve(self, b: np.ndarray, x0: np.ndarray | None = None) -> tuple:
@@ -824,10 +996,10 @@ class MGPressureSolver:
             xv[:] = 0.0
         else:
             xv[:] = np.ravel(x0)
-        its, rel = _pcg(self._LV, self._AOFF, self._AXI, self._AXF, self._cE, self._cN, self._cT, self._dg,
-                        *self._v, self._dense, self._xl, self._bl, self._rl, self._t1, self._t2, self._dw, self._qw,
-                        self.nu, self.chebyshev, 2.0 / self.cheb_ratio, self.singular, self.tol, self.maxiter,
-                        bv, xv, r, z, p, q)
+        its, rel = _pcg(self._LV, self._LF, self._AOFF, self._AXI, self._AXF, self._cE, self._cN, self._cT,
+                        self._dg, *self._v, self._dense, self._xl, self._bl, self._rl, self._t1, self._t2, self._dw,
+                        self._qw, self.nu, self.chebyshev, 2.0 / self.cheb_ratio, self.singular, self.tol,
+                        self.maxiter, bv, xv, r, z, p, q, self._part, self._ones)
         x = xv.copy()
         if self.singular:
             x -= x.mean()

@@ -102,17 +102,20 @@ def chute_like(shape=(16, 15, 40), lengths=(0.08, 0.045, 0.24)):
     return g, pbc, co
 
 
-def test_vcycle_convergence_factor_on_a_known_solution():
+@pytest.mark.parametrize("ratio,bound", [(1.5, 0.2), (2.0, 0.3)])
+def test_vcycle_convergence_factor_on_a_known_solution(ratio, bound):
     """Stationary iteration x <- x + M (b - A x) with one V-cycle as M: the error (against a
     known smooth-plus-rough solution, b from the independent CSR assembly) drops by a factor
-    below 0.2 per cycle on the variable-coefficient chute-like problem."""
+    below 0.2 per cycle on the variable-coefficient chute-like problem with the y-only first
+    coarsening (coarsen_ratio 1.5; measured 0.17), below 0.3 when all axes of the 5 x 3 x 6 mm
+    cells are coarsened at once (the default 2.0; measured 0.28, cheaper cycles)."""
     g, pbc, co = chute_like()
     ref = PressureSolver(g, pbc)
     ref.set_coefficients(*co)
     X, Y, Z = g.mesh("ccc")
     exact = np.cos(40 * X) * np.sin(70 * Y) * np.cos(13 * Z) + 0.1 * np.random.default_rng(1).standard_normal(g.shape)
     b = ref.apply(exact)
-    mg = MGPressureSolver(g, pbc)
+    mg = MGPressureSolver(g, pbc, coarsen_ratio=ratio)
     mg.set_coefficients(*co)
     x = np.zeros(g.shape)
     errs = []
@@ -121,7 +124,7 @@ def test_vcycle_convergence_factor_on_a_known_solution():
         x = x + mg.vcycle(r).reshape(g.shape)
         errs.append(np.linalg.norm(x - exact))
     factors = [errs[i + 1] / errs[i] for i in range(2, 7)]
-    assert max(factors) < 0.2, factors
+    assert max(factors) < bound, factors
     assert errs[-1] < 1e-4 * np.linalg.norm(exact)
 
 
@@ -143,13 +146,15 @@ def test_vcycle_is_symmetric_positive_definite(smoother):
 
 
 def test_hierarchy_handles_odd_sizes_and_rediscretises():
-    """The chute grid (cells 5 x 3 x 6 mm) first coarsens only its finest axis (semi-coarsening
-    to 5 x 5.6 x 6 mm), then all three: 16x15x150 -> 16x8x150 -> 8x4x75 -> 4x2x38 -> 2x1x19
-    (ceil(n/2) for odd counts); for a constant coefficient the coarse weights are the
-    re-discretisation a A_F / D_F."""
+    """The chute grid (cells 5 x 3 x 6 mm): with coarsen_ratio 1.5 it first coarsens only its
+    finest axis (semi-coarsening to 5 x 5.6 x 6 mm), then all three: 16x15x150 -> 16x8x150 ->
+    8x4x75 -> 4x2x38 -> 2x1x19 (ceil(n/2) for odd counts); with the default 2.0 all three at
+    once; for a constant coefficient the coarse weights are the re-discretisation a A_F / D_F."""
     g = StaggeredGrid((16, 15, 150), (0.08, 0.045, 0.9))
-    mg = MGPressureSolver(g, bcs((N, N), (N, N), (N, D)))
+    mg = MGPressureSolver(g, bcs((N, N), (N, N), (N, D)), coarsen_ratio=1.5)
     assert mg.levels == [(16, 15, 150), (16, 8, 150), (8, 4, 75), (4, 2, 38), (2, 1, 19)]
+    mg = MGPressureSolver(g, bcs((N, N), (N, N), (N, D)))
+    assert mg.levels == [(16, 15, 150), (8, 8, 75), (4, 4, 38), (2, 2, 19)]
     g = StaggeredGrid((8, 8, 8), (1.0, 1.0, 1.0))
     mg = MGPressureSolver(g, bcs((N, N), (N, N), (D, D)))
     mg.set_coefficients(*(np.full(s, 0.7) for s in mg._fshapes))
@@ -165,17 +170,32 @@ def test_hierarchy_handles_odd_sizes_and_rediscretises():
         np.testing.assert_allclose(dZ[:, :, 0], 0.7 * H * H / (H / 2), rtol=1e-13)  # Dirichlet: a A / (H/2)
 
 
-def test_thread_count_does_not_change_the_solution():
-    g, pbc, co = chute_like()
+@pytest.mark.parametrize("case", [0, 2, 3])
+def test_thread_count_does_not_change_the_solution(case):
+    """The threaded kernels (smoother, residual, transfers, CG vector operations with
+    per-plane partial sums) give bit-identical solutions for 1, 2 and 3 threads, and the same
+    as the serial path (par_min above the cell count); case 2 and 3 have an odd periodic x
+    axis (red and black cells touch across the wrap)."""
+    if case == 0:
+        g, pbc, co = chute_like()
+    else:
+        shape, pbc = CASES[case]
+        g, co, _ = random_system(shape, (0.05, 0.04, 0.07), pbc, seed=11)
     b = np.random.default_rng(4).standard_normal(g.shape)
+    if not any(v == D for v in pbc.values()):
+        b -= b.mean()
     out = []
-    for nt in (1, min(2, numba.config.NUMBA_NUM_THREADS)):
-        numba.set_num_threads(nt)
-        mg = MGPressureSolver(g, pbc, tol=1e-10)
-        mg.set_coefficients(*co)
-        out.append(mg.solve(b)[0])
+    for par_min, threads in ((10**9, (1,)), (1, (1, 2, 3))):
+        for nt in threads:
+            numba.set_num_threads(min(nt, numba.config.NUMBA_NUM_THREADS))
+            mg = MGPressureSolver(g, pbc, tol=1e-10, par_min=par_min)
+            mg.set_coefficients(*co)
+            phi, info = mg.solve(b)
+            assert info.converged
+            out.append(phi)
     numba.set_num_threads(1)
-    assert np.array_equal(out[0], out[1])
+    for o in out[1:]:
+        assert np.array_equal(out[0], o)
 
 
 def test_agrees_with_amg_on_the_chute_like_problem_and_reports_non_convergence():
