@@ -279,6 +279,7 @@ def plot(results, path):
     ax.axhline(W, color="grey", ls="--", label="bed weight / area W")
     ax.set_xlabel("superficial gas velocity U [m/s]")
     ax.set_ylabel("pressure drop dp [Pa]")
+    ax.set_ylim(bottom=0.0)
     ax.legend(fontsize=7)
     ax.set_title("dp (o, +-2 SEM) and closure fixed-bed dp (x)", fontsize=9)
     bx.axhline(1.0, color="grey", ls="--")
