@@ -14,10 +14,11 @@ the same.
 Hierarchy (built once per grid, in Python):
 
 * cell-centred coarsening by 2 along each axis whose cell width is at most
-  ``coarsen_ratio`` (2.0) times the smallest one (semi-coarsening keeps the coarse cells
+  ``coarsen_ratio`` (1.5) times the smallest one (semi-coarsening keeps the coarse cells
   roughly isotropic, so point Gauss-Seidel still smooths; on the chute, 5 x 3 x 6 mm cells,
-  2.0 coarsens all three axes at once: 8 CG iterations instead of 7 with 1.5, but no
-  16 x 8 x 150 level, 13 % less solve time, measured); coarse cell I covers fine cells 2I and 2I+1, and an odd
+  2.0 would coarsen all three axes at once: measured 5-10 % less solve time in the gas
+  step, but 7.2 instead of 6 CG iterations with eps = 1 and 9 instead of 7 with the bed, a
+  weaker preconditioner; not the default); coarse cell I covers fine cells 2I and 2I+1, and an odd
   count leaves the last coarse cell with one fine cell (ceil(n/2) coarse cells: coarse
   grids may be non-uniform, all widths and centre distances are tracked per axis);
 * until at most ``coarse_max`` cells remain (or no axis can be coarsened); the coarsest
@@ -842,7 +843,7 @@ class MGPressureSolver:
     """
 
     def __init__(self, grid, pressure_bc: dict, *, tol: float = 1e-8, maxiter: int = 200,
-                 nu: int = 2, coarse_max: int = 128, coarsen_ratio: float = 2.0, omega: float = 1.2,
+                 nu: int = 2, coarse_max: int = 128, coarsen_ratio: float = 1.5, omega: float = 1.2,
                  chebyshev: int = 0, cheb_ratio: float = 6.0, par_min: int = 4096):
         self.grid = grid
         self.pressure_bc = dict(pressure_bc)
