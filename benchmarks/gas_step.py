@@ -13,15 +13,17 @@ top, co-flow inlet, pressure outlet.  Two porosity fields:
 64^3: a unit box, walls and lid cross-wind, periodic along z, a moving bed-like porosity
 with noise and drag K = 30 everywhere.
 
-Compile time and the first AMG set-up are excluded (warm-up steps).  Each (grid, solver)
-pair is timed ``--repeats`` times, alternating mg and amg so that both see the same machine
-load; the output gives the range over the repeats of the mean time per step, wall clock and
-CPU time of this thread (numba runs on one thread here, so the CPU time does not count the
-time the process waited for the shared cores), split into predictor (momentum right-hand
-side and predictor kernels), pressure (coefficient set-up and solve) and rest, plus pressure
-iterations, the mass-balance defect and the amg/mg ratio.
+Compile time and the first AMG set-up are excluded (warm-up steps).  Each configuration
+(grid, solver, numba threads: mg with every count of ``--threads``, amg with the first) is
+timed ``--repeats`` times, alternating them so that all see the same machine load; the
+output gives the range over the repeats of the mean time per step, wall clock and process
+CPU time (all threads; it does not count the time the process waited for the shared
+cores), split into predictor (momentum right-hand side and predictor kernels), pressure
+(coefficient set-up and solve) and rest, plus pressure iterations, the mass-balance defect,
+and the ratios amg/mg and 1 thread / t threads measured in the same round.
 
-Usage: python benchmarks/gas_step.py [--steps 20] [--repeats 3] [--tol 1e-8] [--no-cube]
+Usage: python benchmarks/gas_step.py [--steps 20] [--repeats 3] [--threads 1,2] [--tol 1e-8]
+                                     [--no-cube] [--no-amg]
        python benchmarks/gas_step.py --tol-sweep      (mg iterations and defect against tol)
 """
 

@@ -49,10 +49,17 @@ coarsest solve) and a valid CG preconditioner.  With an odd periodic axis the tw
 touch across the wrap; the sweeps then are ordinary Gauss-Seidel sweeps in the red-black
 order and the reverse order is still their adjoint.
 
-All kernels are serial (one numba thread), so results do not depend on the thread count and
-the reductions (CG dot products) are in a fixed order.  A threaded version was not tried: on
-the shared 2-core machines the other gas kernels got slower with a second thread
-(docs/gas.md).
+Threads: on every level of at least ``par_min`` (4096) cells the smoother, the residual and
+the transfers run with the x planes in parallel (one ``prange`` per kernel), and so do the
+CG vector operations on the finest level.  Red-black Gauss-Seidel is deterministic per
+colour: the rows of one colour are independent, except across an odd periodic x axis, where
+row nx-1 is done after (forward) or before (reverse) the others, as in the serial order.
+The restriction along x is parallel over y (each coarse entry is summed by one thread, in
+increasing fine index).  Every inner product is a serial sum of per-plane partial sums
+(:func:`_rowdot`, a fixed order).  So the iterates are bit-identical for any thread count
+and for the serial path (tested with 1, 2, 3 threads).  Measured on the shared 2-core machine
+(load 8-9): 2 threads are 7-10 % slower than 1 on the chute grid, up to 1.19x faster on
+64^3 (docs/gas.md, "Cost").  The set-up's coarsening and the Chebyshev smoother are serial.
 
 References: Trottenberg, Oosterlee & Schueller, *Multigrid* (2001), ch. 2-5; Mohr &
 Wienands, Comput. Vis. Sci. 7 (2004) 129 (cell-centred transfers); Tatebe, Copper Mountain
@@ -837,7 +844,8 @@ class MGPressureSolver:
     Gauss-Seidel smoother; k > 0: Chebyshev-Jacobi smoothing of degree k on the spectral
     interval [2/cheb_ratio, 2] of D^-1 A instead, every loop vectorised; measured on the
     chute 13-18 % cheaper solves with ``chebyshev=3, cheb_ratio=15, coarsen_ratio=2``, on
-    64^3 9 % dearer, so not the default).
+    64^3 9 % dearer, so not the default), par_min (levels with at least this many cells run
+    their kernels with the x planes in parallel; the result does not depend on it).
     There is no set-up to reuse: the whole hierarchy's coefficients are refreshed from the
     current face coefficients at every ``set_coefficients`` (about one V-cycle's cost).
     """
