@@ -70,9 +70,10 @@ from __future__ import annotations
 
 import numpy as np
 
+# cfddem._jit before numba: it selects numba's threading layer (OpenMP, passive waiting)
+# through environment variables that numba reads when it is first imported
+from cfddem._jit import kernel, parallel_kernel, prange  # noqa: I001
 from numba import uint64 as U
-
-from cfddem._jit import kernel, parallel_kernel, prange
 from cfddem.gas.pressure import SolveInfo
 
 _KIND = {"neumann": 0, "dirichlet": 1, "periodic": 2}
