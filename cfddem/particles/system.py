@@ -17,7 +17,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numba
+from cfddem import _jit  # noqa: F401  (numba flags and threading layer before numba starts)
+import numba  # noqa: E402
 import numpy as np
 
 from cfddem.errors import CaseError
