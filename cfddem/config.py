@@ -220,7 +220,9 @@ SCHEMA: dict[str, dict] = {
         "seed": Key("int", 12345, "-", "seed for polydisperse sizes", lo=0),
         "clump": Key("str", "none", "-", "particle shape: 'none' (spheres) or a rigid clump of spheres of this "
                      "diameter: 'pellet2' (two spheres d/2 apart), 'pellet4' (tetrahedron of edge d/2); clumps are "
-                     "inserted by the shear_cell fill (docs/particles.md)", choices=("none", "pellet2", "pellet4")),
+                     "inserted by the shear_cell and silo fills and the sluice inlet, one per lattice "
+                     "site in a random orientation; initial particles stay spheres (docs/particles.md)",
+                     choices=("none", "pellet2", "pellet4")),
     },
     "contact": {
         "model": Key("str", "linear", "-", "contact law: 'linear' spring-dashpot (keys k_n, e_n, e_t, mu, mu_r) or "
@@ -666,9 +668,11 @@ def _check_consistency(r: dict, case_dir: Path) -> None:
         from .scenes.shear import check_shear_case
 
         check_shear_case(r)
-    if p["clump"] != "none" and geo["type"] != "shear_cell":
-        raise CaseError("particles.clump", "clumps are inserted by the shear_cell fill only (the sluice inlet, "
-                                           "silo fill and initial particles insert spheres)")
+    if p["clump"] != "none" and geo["type"] not in ("shear_cell", "silo") and r["inlet"]["type"] != "sluice":
+        raise CaseError("particles.clump", "pellets are inserted by the shear_cell and silo fills and the sluice "
+                                           "inlet only (initial particles are spheres): this case has none of them")
+    if p["clump"] != "none" and p["diameter_max"] > 0:
+        raise CaseError("particles.diameter_max", "pellets (particles.clump) are monodisperse: leave it 0")
     if geo["type"] != "chute" and r["gas"]["enabled"]:
         raise CaseError("gas.enabled", "the gas phase is available for geometry.type = 'chute' only")
     if r["frame"]["rpm"] != 0 and r["gravity"]["g"] == 0:

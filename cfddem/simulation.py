@@ -789,12 +789,14 @@ def check_time_step(case: Case, log=None) -> float:
 
 def sluice_inlet(case: Case):
     """The case's sluice inlet (physics.md §5)."""
+    from .particles.clumps import shape_from_case
     from .particles.inlets import SluiceInlet
 
     p, inl = case.particles, case.inlet
     return SluiceInlet(width=case.geometry.width, height=inl.height, z=inl.z, diameter=p.diameter,
                        diameter_max=p.diameter_max, seed=p.seed, density=p.density, mass_rate=inl.mass_rate,
-                       start_time=inl.start_time, end_time=inl.end_time, gap=inl.gap, hold_length=inl.hold_length)
+                       start_time=inl.start_time, end_time=inl.end_time, gap=inl.gap, hold_length=inl.hold_length,
+                       shape=shape_from_case(p.clump, p.diameter, p.density))
 
 
 def expected_particles(case: Case) -> int:
@@ -802,8 +804,9 @@ def expected_particles(case: Case) -> int:
     (feed rate x the time to slide the chute length, accelerating at g (sin theta - mu_w cos
     theta) from the feed speed), capped by what is fed before the end time."""
     n = len(case.particles.initial)
+    spheres = {"none": 1, "pellet2": 2, "pellet4": 4}.get(case.particles.clump, 4)  # per site
     if case.geometry.type == "silo":
-        n += case.silo.n_particles
+        n += spheres * case.silo.n_particles
     if case.geometry.type == "shear_cell":  # fill (up to 4 spheres per clump) + lid
         n += 4 * case.shear.n_particles + 1000
     if case.particles.initial_file:
@@ -822,7 +825,7 @@ def expected_particles(case: Case) -> int:
         else:
             t_res = L / v0
         t_feed = max(0.0, min(case.time.end_time, case.inlet.end_time) - case.inlet.start_time)
-        n += int(case.inlet.mass_rate * min(t_res, t_feed) / inl.particle_mass)
+        n += spheres * int(case.inlet.mass_rate * min(t_res, t_feed) / inl.particle_mass)
     return n
 
 

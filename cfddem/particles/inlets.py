@@ -33,6 +33,23 @@ in [diameter, diameter_max]; the lattice is spaced for the largest one and the f
 the mean particle mass, rho pi/6 E[d^3] with E[d^3] = (d_max^4 - d_min^4) / (4 (d_max - d_min)).
 The diameters of layer k come from a generator seeded with (seed, k), so a layer that waits, a
 restarted run and an uninterrupted one all draw the same sizes.
+
+Pellet feed (``shape``: a :class:`~cfddem.particles.clumps.ClumpShape`, ``particles.clump``):
+each site holds one rigid pellet, centre of mass on the site, in a random orientation (uniform
+on SO(3), :func:`random_quaternions`, generator seeded with (seed, k, site) so a retried site
+keeps its orientation).  The lattice is spaced for the pellet's bounding diameter
+D_b = 2 max_m (|s_m| + r_m) (:func:`bounding_diameter`; pellet2: 1.5 d, pellet4:
+(1 + sqrt(6)/4) d = 1.612 d), a site is free if the bounding sphere overlaps no particle, and the
+feed velocity uses the pellet mass M (union of its spheres):
+
+    v0 = mdot / (M n_cell / a).
+
+Held pellets: the clump kernels write the member spheres' velocities from the body, so the
+sphere ``held`` flag would not hold a pellet; instead the BODY's centre-of-mass velocity is held
+(``vfix`` = (1, 1, 1), ``vset`` = (0, 0, v0) on the clump, :mod:`cfddem.particles.clumps`) until
+its centre of mass is ``hold_length`` past the insertion plane, then released (``vfix`` = 0).
+A held pellet can still rotate (its spin is not held).  Releasing a held pellet drops only the
+constraint: it keeps the feed velocity.
 """
 
 from __future__ import annotations
@@ -81,14 +98,30 @@ def bcc_sluice_lattice(width: float, height: float, diameter: float, gap: float 
     return SluiceLattice(a=a, corner=corner, centre=centre)
 
 
+def bounding_diameter(shape) -> float:
+    """Diameter of the smallest sphere about the centre of mass that holds every member sphere
+    of a clump shape: D_b = 2 max_m (|s_m| + r_m)."""
+    return 2.0 * float(np.max(np.linalg.norm(shape.offsets, axis=1) + shape.radii))
+
+
+def random_quaternions(rng, n: int) -> np.ndarray:
+    """(n, 4) unit quaternions uniform on SO(3): normalised 4D standard normals (Marsaglia 1972;
+    the normal distribution is isotropic, so the direction is uniform on S^3)."""
+    q = rng.standard_normal((n, 4))
+    return q / np.linalg.norm(q, axis=1)[:, None]
+
+
 class SluiceInlet:
     """Feeds the bcc sluice lattice at a mass rate; see the module docstring."""
 
     def __init__(self, *, width: float, height: float, z: float, diameter: float, density: float,
                  mass_rate: float, start_time: float = 0.0, end_time: float = math.inf, gap: float = 0.02,
                  diameter_max: float = 0.0, seed: int = 12345, retry_periods: float = 2.0,
-                 min_spacing: float | None = None, hold_length: float | None = None):
-        dmax = max(diameter, diameter_max)
+                 min_spacing: float | None = None, hold_length: float | None = None, shape=None):
+        self.shape = shape  # ClumpShape: pellets (monodisperse), None: spheres
+        if shape is not None and diameter_max > diameter:
+            raise ValueError("a pellet feed is monodisperse (diameter_max must be 0)")
+        dmax = max(diameter, diameter_max) if shape is None else bounding_diameter(shape)
         self.lattice = bcc_sluice_lattice(width, height, dmax, gap)
         self.d_min, self.d_max = diameter, dmax
         self.seed = int(seed)
@@ -102,6 +135,8 @@ class SluiceInlet:
         else:
             mean_d3 = diameter ** 3
         self.particle_mass = density * math.pi / 6.0 * mean_d3  # mean particle mass
+        if shape is not None:
+            self.particle_mass = float(shape.mass)  # one pellet per site
         lin_density = self.particle_mass * self.lattice.per_period / self.lattice.a  # kg/m along z
         self.velocity = mass_rate / lin_density
         # first layer: its back touches the sluice's upstream edge (the back wall)
@@ -117,7 +152,7 @@ class SluiceInlet:
         self.hold_length = self.lattice.a if hold_length is None else float(hold_length)
         self.pending: list[tuple[int, np.ndarray]] = []  # (layer, blocked site indices)
         self.mass_inserted = 0.0
-        self.count_inserted = 0
+        self.count_inserted = 0  # particles, or pellets with a shape
         self.mass_dropped = 0.0  # feed deficit: sites still blocked after retry_periods
         self.count_dropped = 0
 
@@ -153,8 +188,9 @@ class SluiceInlet:
         return out
 
     def radii(self, k: int, n: int) -> np.ndarray:
-        """Radii of the n particles of layer k (deterministic in (seed, k))."""
-        if self.d_max == self.d_min:
+        """Radii of the n particles of layer k (deterministic in (seed, k)); pellets: the
+        bounding radius."""
+        if self.shape is not None or self.d_max == self.d_min:
             return np.full(n, 0.5 * self.d_min)
         rng = np.random.default_rng([self.seed, k])
         return 0.5 * rng.uniform(self.d_min, self.d_max, n)
@@ -173,10 +209,31 @@ class SluiceInlet:
         if free.any():
             vel = np.zeros((int(free.sum()), 3))
             vel[:, 2] = self.velocity
-            system.add_particles(pos[free], vel, rad[free], self.density, held=self.hold_length > 0)
+            if self.shape is None:
+                system.add_particles(pos[free], vel, rad[free], self.density, held=self.hold_length > 0)
+                self.mass_inserted += float(np.sum(self.density * 4.0 / 3.0 * math.pi * rad[free] ** 3))
+            else:
+                q = np.array([random_quaternions(np.random.default_rng([self.seed, k, int(i), 1]), 1)[0]
+                              for i in sites[free]])
+                bids = system.add_clumps(self.shape, pos[free], quat=q, vel=vel)
+                self.mass_inserted += float(self.shape.mass) * len(bids)
+                if self.hold_length > 0:
+                    c = system.clumps
+                    idx = np.arange(c.nb - len(bids), c.nb)  # add_clumps appends
+                    c.vfix[idx] = 1.0
+                    c.vset[idx] = vel
             self.count_inserted += int(free.sum())
-            self.mass_inserted += float(np.sum(self.density * 4.0 / 3.0 * math.pi * rad[free] ** 3))
         return sites[blocked]
+
+    def _release_pellets(self, system) -> None:
+        """Release the held pellets whose centre of mass is past the hold zone (vfix = 0)."""
+        c = system.clumps
+        if c is None or c.nb == 0:
+            return
+        past = (c.com[:, 2] > self.z_insert + self.hold_length - 1e-12) & (c.vfix[:, 2] != 0.0)
+        if past.any():
+            c.vfix[past] = 0.0
+            c.vset[past] = 0.0
 
     def layer_size(self, k: int) -> int:
         return len(self.lattice.corner) if k % 2 == 0 else len(self.lattice.centre)
@@ -187,14 +244,20 @@ class SluiceInlet:
         n0 = self.count_inserted
         if self.hold_length > 0 and system.n:
             # release the fed particles that are past the hold zone
-            system.release(system.pos[:, 2] > self.z_insert + self.hold_length - 1e-12)
+            if self.shape is None:
+                system.release(system.pos[:, 2] > self.z_insert + self.hold_length - 1e-12)
+            else:
+                self._release_pellets(system)
         # retry the sites still pending from earlier layers (oldest first)
         keep = []
         for k, t_layer, sites in self.pending:
             if self._lattice_shift(t_layer, time) > self.retry_periods * self.lattice.a:
-                rad = self.radii(k, self.layer_size(k))[sites]
                 self.count_dropped += len(sites)
-                self.mass_dropped += float(np.sum(self.density * 4.0 / 3.0 * math.pi * rad ** 3))
+                if self.shape is None:
+                    rad = self.radii(k, self.layer_size(k))[sites]
+                    self.mass_dropped += float(np.sum(self.density * 4.0 / 3.0 * math.pi * rad ** 3))
+                else:
+                    self.mass_dropped += float(self.shape.mass) * len(sites)
                 continue
             left = self._try_sites(system, k, t_layer, sites, time)
             if len(left):

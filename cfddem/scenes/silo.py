@@ -78,8 +78,15 @@ class SiloGeometry:
     centre xc, hopper top y_h (0 for a flat bottom), fill lattice, side-wall height H, removal
     depth."""
 
-    def __init__(self, silo: dict, d: float, seed: int = 12345):
+    def __init__(self, silo: dict, d: float, seed: int = 12345, clump: str = "none", density: float = 2550.0):
         self.seed = seed
+        # pellets (particles.clump): one pellet per lattice site, the lattice spaced for the
+        # pellet's bounding diameter d_site = 2 max_m (|s_m| + r_m); spheres: d_site = d
+        from ..particles.clumps import shape_from_case
+        from ..particles.inlets import bounding_diameter
+
+        self.shape = shape_from_case(clump, d, density)
+        self.d_site = d if self.shape is None else bounding_diameter(self.shape)
         self.W = silo["width"]
         self.L = silo["depth"]
         self.b = silo["outlet_width"]
@@ -89,9 +96,9 @@ class SiloGeometry:
         self.xc = 0.5 * self.W
         self.y_h = 0.5 * (self.W - self.b) * math.tan(self.angle) if self.angle > 0 else 0.0
         self.removal_depth = silo["removal_depth"] or (self.lip + 1.5 * d)
-        self.lattice = fill_lattice(self.W, self.L, self.y_h, d, silo["n_particles"], silo["lattice_gap"],
+        self.lattice = fill_lattice(self.W, self.L, self.y_h, self.d_site, silo["n_particles"], silo["lattice_gap"],
                                     silo["lattice_jitter"], seed)
-        top = float(self.lattice[:, 1].max()) + 0.5 * d
+        top = float(self.lattice[:, 1].max()) + 0.5 * self.d_site
         self.H = silo["height"] or (top + 2 * d)
         self.lattice_top = top
         self.pour = silo["fill"] == "pour"
@@ -103,15 +110,22 @@ class SiloGeometry:
     def pour_layer(self, k: int, n: int) -> np.ndarray:
         """Layer ``k`` of the pour: the first ``n`` sites of one lattice layer at y = pour_y
         (jitter seeded with (seed, k))."""
-        clear = 0.5 * self.d * (1.0 + self.gap)
+        clear = 0.5 * self.d_site * (1.0 + self.gap)
         per = self.layer_size()
-        lay = fill_lattice(self.W, self.L, self.pour_y - clear, self.d, per, self.gap, self.jitter,
+        lay = fill_lattice(self.W, self.L, self.pour_y - clear, self.d_site, per, self.gap, self.jitter,
                            np.random.SeedSequence([self.seed, k]).generate_state(1)[0])
         return lay[:n]
 
+    def orientations(self, k: int, n: int) -> np.ndarray:
+        """Random uniform unit quaternions (n, 4) of the pellets of pour layer ``k`` (k = -1:
+        the lattice fill), deterministic in (seed, k)."""
+        from ..particles.inlets import random_quaternions
+
+        return random_quaternions(np.random.default_rng([self.seed, 7919, k + 1]), n)
+
     def layer_size(self) -> int:
-        r = 0.5 * self.d
-        a = self.d * (1.0 + self.gap)
+        r = 0.5 * self.d_site
+        a = self.d_site * (1.0 + self.gap)
         clear = r * (1.0 + self.gap)
         nx = int(math.floor((self.W - 2 * clear) / a + 1e-9)) + 1
         nz = int(math.floor((self.L - 2 * clear) / a + 1e-9)) + 1
@@ -161,8 +175,13 @@ def check_silo_case(r: dict) -> None:
     if not s["outlet_width"] < s["width"] - 2 * d:
         raise CaseError("silo.outlet_width", f"{s['outlet_width']:g} m leaves no bottom: must be below "
                                              f"silo.width - 2 d = {s['width'] - 2 * d:g} m")
-    if s["depth"] < d * (1 + s["lattice_gap"]):
-        raise CaseError("silo.depth", f"{s['depth']:g} m does not fit one particle (d = {d:g} m)")
+    from ..particles.clumps import shape_from_case
+    from ..particles.inlets import bounding_diameter
+
+    shape = shape_from_case(r["particles"]["clump"], d, r["particles"]["density"])
+    d_site = d if shape is None else bounding_diameter(shape)
+    if s["depth"] < d_site * (1 + s["lattice_gap"]):
+        raise CaseError("silo.depth", f"{s['depth']:g} m does not fit one particle (lattice site {d_site:g} m)")
     if not s["lattice_jitter"] < s["lattice_gap"]:
         raise CaseError("silo.lattice_jitter", f"{s['lattice_jitter']:g} must be below silo.lattice_gap = "
                                                f"{s['lattice_gap']:g} (otherwise lattice spheres could overlap)")
@@ -183,7 +202,7 @@ def check_silo_case(r: dict) -> None:
             if v is not None and not v > 0:
                 raise CaseError(f"silo.{grp}.{k}", f"{v:g} must be positive")
     if s["height"]:
-        g = SiloGeometry(s, d, r["particles"]["seed"])
+        g = SiloGeometry(s, d, r["particles"]["seed"], r["particles"]["clump"], r["particles"]["density"])
         if s["fill"] == "pour" and s["height"] < g.pour_y + 0.5 * d:
             raise CaseError("silo.height", f"{s['height']:g} m is below the pour height ({g.pour_y:.4g} m)")
         if s["fill"] == "lattice" and s["height"] < g.lattice_top:
@@ -197,7 +216,7 @@ def silo_walls(case):
     from ..scene import WallSpec
 
     s = case.resolved["silo"]
-    g = SiloGeometry(s, case.particles.diameter, case.particles.seed)
+    g = SiloGeometry(s, case.particles.diameter, case.particles.seed, case.particles.clump, case.particles.density)
     d, W, L, b, H, xc = g.d, g.W, g.L, g.b, g.H, g.xc
     e = d  # extension past a seam
     ex = np.array([1.0, 0, 0])
@@ -247,7 +266,8 @@ class SiloScene(Scene):
         super().__init__(sim)
         s = self.case.resolved["silo"]
         self.s = s
-        self.g = SiloGeometry(s, self.case.particles.diameter, self.case.particles.seed)
+        p = self.case.particles
+        self.g = SiloGeometry(s, p.diameter, p.seed, p.clump, p.density)
         self.check_dt = s["settle_check_interval"]
         self.k_check = 1
         self.gate_open_time = math.nan
@@ -262,10 +282,14 @@ class SiloScene(Scene):
         cell = s["field_cell"] or 2 * self.g.d
         self.field = VelocityField(0.0, self.g.W, -self.g.lip, self.g.H, cell)
         self.k_field = 0
-        self.n_inserted = 0
+        self.n_inserted = 0  # lattice sites filled (spheres, or pellets with particles.clump)
+        self.spheres_inserted = 0  # spheres inserted (pellets: their member spheres)
+        self.bodies_out = 0  # pellets discharged (removed whole)
         self.layers_done = 0
         d = self.g.d
-        self.m_p = self.case.particles.density * math.pi / 6.0 * d ** 3
+        # mass of one site's particle: a sphere, or a pellet (its union-of-spheres mass)
+        self.m_p = (self.case.particles.density * math.pi / 6.0 * d ** 3 if self.g.shape is None
+                    else self.g.shape.mass)
         self.pour_interval = self.g.layer_size() * self.m_p / s["pour_rate"] if self.g.pour else math.inf
 
     # ------------------------------------------------------------------ hooks
@@ -277,9 +301,9 @@ class SiloScene(Scene):
                     f"{self.g.layer_size()} every {self.pour_interval:.4g} s) at y = {self.g.pour_y:.4g} m")
         else:
             pos = self.g.lattice
-            self.sim.system.add_particles(pos, np.zeros(3), 0.5 * d, self.case.particles.density)
-            self.n_inserted = len(pos)
-            what = f"{len(pos)} particles on a lattice up to y = {self.g.lattice_top:.4g} m"
+            self._insert(pos, -1)
+            what = (f"{len(pos)} {'particles' if self.g.shape is None else self.g.shape.name + ' pellets'} on a "
+                    f"lattice up to y = {self.g.lattice_top:.4g} m")
         self.sim.log.info("silo: %s (side walls to %.4g m), gate %s", what, self.g.H,
                           f"opens at {self.s['gate_time']:g} s" if self.s["gate"] == "time" else
                           f"opens when settled (kinetic energy per particle < {self.s['settle_energy']:g} J) "
@@ -292,11 +316,25 @@ class SiloScene(Scene):
         half = 0.5 * self.sim.dt
         while self.n_inserted < n and t >= self.layers_done * self.pour_interval - half:
             lay = self.g.pour_layer(self.layers_done, min(self.g.layer_size(), n - self.n_inserted))
-            if sys_.n and sys_.overlaps(lay, 0.5 * self.g.d).any():
+            if sys_.n and sys_.overlaps(lay, 0.5 * self.g.d_site).any():
                 return  # wait: retried at the next check
-            sys_.add_particles(lay, np.zeros(3), 0.5 * self.g.d, self.case.particles.density)
-            self.n_inserted += len(lay)
+            self._insert(lay, self.layers_done)
             self.layers_done += 1
+
+    def _insert(self, pos, k: int) -> None:
+        """One sphere, or one pellet (random orientation seeded with (seed, k)), at rest per site."""
+        sys_ = self.sim.system
+        n0 = sys_.n
+        if self.g.shape is None:
+            sys_.add_particles(pos, np.zeros(3), 0.5 * self.g.d, self.case.particles.density)
+        else:
+            sys_.add_clumps(self.g.shape, pos, quat=self.g.orientations(k, len(pos)))
+        self.n_inserted += len(pos)
+        self.spheres_inserted += sys_.n - n0
+
+    def _bodies(self) -> int:
+        c = self.sim.system.clumps
+        return 0 if c is None else int(c.nb)
 
     @property
     def pouring(self) -> bool:
@@ -329,7 +367,9 @@ class SiloScene(Scene):
         if sys_.n:
             out = sys_.pos[:, 1] < -self.g.removal_depth
             if out.any():
+                nb0 = self._bodies()
                 k, m = sys_.remove_particles(out)
+                self.bodies_out += nb0 - self._bodies()
                 sim.counters["count_out"] += k
                 sim.counters["mass_out"] += m
                 self.last_out_time = t
@@ -401,7 +441,9 @@ class SiloScene(Scene):
     def series(self) -> dict:
         c = self.sim.counters
         return {"discharged_mass": c["mass_out"], "discharged_count": float(c["count_out"]),
-                "inserted_count": float(self.n_inserted), "gate_open": 1.0 if self.gate_open else 0.0}
+                "inserted_count": float(self.spheres_inserted), "gate_open": 1.0 if self.gate_open else 0.0,
+                "inserted_bodies": float(self.n_inserted if self.g.shape is not None else 0),
+                "discharged_bodies": float(self.bodies_out)}
 
     def stop_reason(self) -> str | None:
         if not self.ended:
@@ -464,6 +506,7 @@ class SiloScene(Scene):
                 "rec_m": np.array(self.rec_m, float), "clogged": np.int64(self.clogged), "ended": self.ended,
                 "k_field": np.int64(self.k_field), "field": self.field.get_state(),
                 "n_inserted": np.int64(self.n_inserted), "layers_done": np.int64(self.layers_done),
+                "spheres_inserted": np.int64(self.spheres_inserted), "bodies_out": np.int64(self.bodies_out),
                 "fill": {k: (np.asarray(v) if not isinstance(v, (int, float)) else v) for k, v in self.fill.items()}}
 
     def set_state(self, d: dict) -> None:
@@ -477,6 +520,8 @@ class SiloScene(Scene):
         self.ended = e.decode() if isinstance(e, bytes) else str(e)
         self.k_field = int(d["k_field"])
         self.n_inserted = int(d["n_inserted"])
+        self.spheres_inserted = int(d.get("spheres_inserted", self.n_inserted))
+        self.bodies_out = int(d.get("bodies_out", 0))
         self.layers_done = int(d["layers_done"])
         self.field.set_state(d["field"])
         for k, v in d["fill"].items():
