@@ -139,3 +139,70 @@ radius = 0.0015
     with pytest.raises(CaseError) as e:
         load_case(write_case(text, name="refused"))
     assert "particles.clump" in str(e.value)
+
+
+CHUTE = """
+[time]
+end_time = 0.12
+dt = 2e-5
+threads = 1
+[output]
+series_interval = 0.01
+snapshot_interval = 0.1
+vtk = false
+plots = false
+[gravity]
+g = 9.81
+inclination_deg = 30.0
+[particles]
+diameter = 0.003
+density = 2550.0
+clump = "pellet4"
+[contact.particle_particle]
+k_n = 1000.0
+e_n = 0.9
+e_t = 0.33
+mu = 0.12
+[contact.particle_wall]
+k_n = 1000.0
+e_n = 0.9
+e_t = 0.33
+mu = 0.22
+[geometry]
+type = "chute"
+width = 0.02
+depth = 0.012
+length = 0.12
+z_start = -0.02
+[inlet]
+type = "sluice"
+mass_rate = 0.05
+height = 0.012
+[measurements]
+enabled = false
+"""
+
+
+def test_chute_fed_with_held_pellets(write_case, tmp_path, one_numba_thread):
+    case = load_case(write_case(CHUTE, name="chute"))
+    sim = Simulation(case, tmp_path / "chute_out", echo=False, progress=False)
+    assert sim.run().status == "done"
+    s = read_series(tmp_path / "chute_out" / "results.h5")
+    inl = sim.inlet
+    m4 = pellet(4, 0.003, 2550.0).mass
+    assert inl.shape is not None and inl.particle_mass == pytest.approx(m4, rel=1e-14)
+    # whole pellets: 4 spheres per pellet present; present + out = fed (spheres and mass)
+    c = sim.system.clumps
+    assert sim.system.n == 4 * c.nb
+    np.testing.assert_array_equal(s["mass_lost"], 0.0)
+    assert sim.counters["count_out"] % 4 == 0
+    assert c.nb + sim.counters["count_out"] // 4 == inl.count_inserted
+    np.testing.assert_allclose(s["mass_present"] + s["mass_out"], s["mass_in"], rtol=1e-12)
+    # the rate is met: fed mass = mdot T to within one layer, nothing dropped
+    assert inl.mass_dropped == 0.0
+    assert abs(inl.mass_inserted - 0.05 * 0.12) <= m4 * len(inl.lattice.corner)
+    # held pellets (centre of mass in the hold zone) move at the feed velocity; the rest are free
+    held = c.vfix[:, 2] != 0
+    assert np.all(c.com[held, 2] <= inl.z_insert + inl.hold_length + inl.velocity * 1e-3)
+    np.testing.assert_allclose(c.vel[held, 2], inl.velocity, rtol=1e-14)
+    assert np.max(s["max_overlap_ratio"]) < 0.25
