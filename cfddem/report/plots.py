@@ -185,7 +185,9 @@ def write_run_report(results_h5_path, out_dir) -> list[Path]:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     series = read_series(results_h5_path)
-    meas = _find_chute(read_measurements(results_h5_path))
+    raw = read_measurements(results_h5_path)
+    meas = _find_chute(raw)
+    is_chute = isinstance(raw.get("chute"), dict) or "sensor_x" in raw
     jobs = [
         ("series.png", plot_series, series),
         ("bed_height.png", plot_bed_height, meas),
@@ -196,6 +198,10 @@ def write_run_report(results_h5_path, out_dir) -> list[Path]:
     written: list[Path] = []
     lines = [f"report of {results_h5_path}"]
     for fname, fn, data in jobs:
+        if fn is not plot_series and not is_chute:
+            # not a chute run (silo, shear cell, box): its scene writes its own plots
+            lines.append(f"skipped  {fname}: no chute measurements in this run")
+            continue
         try:
             written.append(fn(data, out / fname))
             lines.append(f"written  {fname}")

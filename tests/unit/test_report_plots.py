@@ -91,6 +91,16 @@ def test_run_report_says_what_it_skipped(tmp_path):
         lg.removeHandler(h)
     assert [f.name for f in files] == ["series.png", "report.txt"]
     text = files[-1].read_text()
+    # a run without chute measurements (silo, shear cell, box): listed, not warned about
     for name in ("bed_height.png", "surface_velocity.png", "mean_velocity.png", "depth_profiles.png"):
-        assert f"skipped  {name}" in text
-        assert name in h.text
+        assert f"skipped  {name}: no chute measurements" in text
+        assert name not in h.text
+    # a chute run whose measurements lack a plot's data: warned about
+    with ResultsFile(p, mode="a") as rf:
+        rf.write_measurements("chute", {"sensor_x": np.array([0.015, 0.045])}, {})
+    lg.addHandler(h)
+    try:
+        files = write_run_report(p, tmp_path / "rep2")
+    finally:
+        lg.removeHandler(h)
+    assert "bed_height.png" in h.text and "skipped  bed_height.png" in files[-1].read_text()
