@@ -8,6 +8,8 @@ import pytest
 
 from cfddem.particles import HertzMindlinContact, ParticleSystem, PlaneWall
 
+from .test_dem_incline import record_incline
+
 R = 1.5e-3
 RHO = 2550.0
 M = RHO * 4.0 / 3.0 * math.pi * R**3
@@ -24,15 +26,7 @@ def _incline(theta, t_end=0.15):
                        dt=1e-5, gravity=g)
     d0 = (3 * M * G * math.cos(theta) / (4 * c.E_star * math.sqrt(R))) ** (2 / 3)  # static Hertz overlap
     s.add_particles([[0.0, R - d0, 0.0]], 0.0, R, RHO)
-    ts, vs, ws, xs = [], [], [], []
-    for _ in range(int(round(t_end / 1e-3))):
-        st = s.step(100)
-        assert st.ok, st.message
-        ts.append(s.time)
-        vs.append(s.vel[0, 0])
-        ws.append(s.omega[0, 2])
-        xs.append(s.pos[0, 0])
-    return np.array(ts), np.array(vs), np.array(ws), np.array(xs)
+    return record_incline(s, t_end)
 
 
 def _accel(t, v, t0=0.03):

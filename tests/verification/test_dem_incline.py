@@ -23,6 +23,12 @@ def _incline(theta, mu=MU, mu_r=MU_R, t_end=0.25):
                        dt=1e-5, gravity=g)
     y0 = R - M * G * math.cos(theta) / pw.k_n  # static overlap
     s.add_particles([[0.0, y0, 0.0]], 0.0, R, RHO)
+    return record_incline(s, t_end)
+
+
+def record_incline(s, t_end):
+    """Step a one-sphere system (dt = 1e-5 s) to ``t_end``; every 1 ms record (time, x velocity,
+    spin z, position x)."""
     ts, vs, ws, xs = [], [], [], []
     for _ in range(int(round(t_end / 1e-3))):
         st = s.step(100)
