@@ -49,7 +49,8 @@ coarsest solve) and a valid CG preconditioner.  With an odd periodic axis the tw
 touch across the wrap; the sweeps then are ordinary Gauss-Seidel sweeps in the red-black
 order and the reverse order is still their adjoint.
 
-Threads: on every level of at least ``par_min`` (4096) cells the smoother, the residual and
+Threads (opt-in, ``par_min``; serial by default, see MGPressureSolver): on every level of at
+least ``par_min`` cells the smoother, the residual and
 the transfers run with the x planes in parallel (one ``prange`` per kernel), and so do the
 CG vector operations on the finest level.  Red-black Gauss-Seidel is deterministic per
 colour: the rows of one colour are independent, except across an odd periodic x axis, where
@@ -846,14 +847,17 @@ class MGPressureSolver:
     interval [2/cheb_ratio, 2] of D^-1 A instead, every loop vectorised; measured on the
     chute 13-18 % cheaper solves with ``chebyshev=3, cheb_ratio=15, coarsen_ratio=2``, on
     64^3 9 % dearer, so not the default), par_min (levels with at least this many cells run
-    their kernels with the x planes in parallel; the result does not depend on it).
+    their kernels with the x planes in parallel; the result does not depend on it; default:
+    none, serial: in the coupled 16 rpm chute on an idle 2-core machine with 2 numba threads a
+    solve took 26.7 ms threaded with par_min = 4096 against 11.3 ms serial, as every one of the
+    hundreds of parallel regions per solve wakes the sleeping OpenMP threads).
     There is no set-up to reuse: the whole hierarchy's coefficients are refreshed from the
     current face coefficients at every ``set_coefficients`` (about one V-cycle's cost).
     """
 
     def __init__(self, grid, pressure_bc: dict, *, tol: float = 1e-8, maxiter: int = 200,
                  nu: int = 2, coarse_max: int = 128, coarsen_ratio: float = 1.5, omega: float = 1.2,
-                 chebyshev: int = 0, cheb_ratio: float = 6.0, par_min: int = 4096):
+                 chebyshev: int = 0, cheb_ratio: float = 6.0, par_min: int = 1 << 40):
         self.grid = grid
         self.pressure_bc = dict(pressure_bc)
         self.tol = float(tol)
