@@ -76,6 +76,14 @@ class Wall:
     def geometry(self) -> np.ndarray:  # pragma: no cover - overridden
         raise NotImplementedError
 
+    def _row(self, kind: int) -> np.ndarray:
+        """A geometry row with the entries every kind shares: kind, p (``point``), v."""
+        g = np.zeros(WALL_NGEOM)
+        g[0] = kind
+        g[1:4] = np.asarray(self.point, float)
+        g[16:19] = np.asarray(self.velocity, float)
+        return g
+
 
 @dataclass
 class PlaneWall(Wall):
@@ -85,12 +93,9 @@ class PlaneWall(Wall):
     normal: tuple = (0.0, 1.0, 0.0)
 
     def geometry(self) -> np.ndarray:
-        g = np.zeros(WALL_NGEOM)
-        g[0] = KIND_PLANE
-        g[1:4] = np.asarray(self.point, float)
+        g = self._row(KIND_PLANE)
         g[4:7] = _unit("wall.normal", self.normal)
         g[14] = g[15] = np.inf
-        g[16:19] = np.asarray(self.velocity, float)
         # ref stored separately (see pack_walls)
         return g
 
@@ -114,15 +119,12 @@ class RectangleWall(Wall):
         a2 = np.cross(n, a1)
         if not (self.half1 > 0 and self.half2 > 0):
             raise CaseError("wall.half", f"half-extents must be positive, got {self.half1}, {self.half2}")
-        g = np.zeros(WALL_NGEOM)
-        g[0] = KIND_RECT
-        g[1:4] = np.asarray(self.point, float)
+        g = self._row(KIND_RECT)
         g[4:7] = n
         g[7:10] = a1
         g[10:13] = a2
         g[13] = self.half1
         g[14] = self.half2
-        g[16:19] = np.asarray(self.velocity, float)
         return g
 
 
@@ -145,14 +147,11 @@ class CylinderWall(Wall):
             raise CaseError("wall.radius", f"cylinder radius must be positive, got {self.radius}")
         if not (self.half_height > 0 and math.isfinite(self.half_height)):
             raise CaseError("wall.half_height", f"cylinder half-height must be positive, got {self.half_height}")
-        g = np.zeros(WALL_NGEOM)
-        g[0] = KIND_CYLINDER
-        g[1:4] = np.asarray(self.point, float)
+        g = self._row(KIND_CYLINDER)
         g[4:7] = a
         g[7] = -1.0 if self.inside else 1.0
         g[13] = self.radius
         g[14] = self.half_height
-        g[16:19] = np.asarray(self.velocity, float)
         return g
 
 
@@ -169,13 +168,10 @@ class AnnulusWall(Wall):
     def geometry(self) -> np.ndarray:
         if not (0.0 <= self.r_in < self.r_out and math.isfinite(self.r_out)):
             raise CaseError("wall.radius", f"annulus needs 0 <= r_in < r_out, got {self.r_in}, {self.r_out}")
-        g = np.zeros(WALL_NGEOM)
-        g[0] = KIND_ANNULUS
-        g[1:4] = np.asarray(self.point, float)
+        g = self._row(KIND_ANNULUS)
         g[4:7] = _unit("wall.normal", self.normal)
         g[13] = self.r_in
         g[14] = self.r_out
-        g[16:19] = np.asarray(self.velocity, float)
         return g
 
 
@@ -190,6 +186,19 @@ def pack_walls(walls: list[Wall]):
         ref[k] = np.asarray(w.ref_point if w.ref_point is not None else w.point, float)
         par[k] = w.contact.params()
     return geom, ref, par
+
+
+@kernel(inline="always")
+def _point_contact(x, y, z, r, qx, qy, qz, nx, ny, nz):
+    """Contact of a sphere with the point q of a wall's edge, corner or rim: normal (x - q)/|x - q|,
+    overlap r - |x - q| (none if |x - q| >= r or 0; n is returned unchanged then)."""
+    dx = x - qx
+    dy = y - qy
+    dz = z - qz
+    d = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if d >= r or d == 0.0:
+        return -1.0, nx, ny, nz, 0.0, 0.0, 0.0
+    return r - d, dx / d, dy / d, dz / d, qx, qy, qz
 
 
 @kernel(inline="always")
@@ -232,13 +241,7 @@ def wall_contact_s(kind, g1, g2, g3, g4, g5, g6, g7, g8, g9, g10, g11, g12, g13,
         qx = g1 + se * nx + g13 * ux
         qy = g2 + se * ny + g13 * uy
         qz = g3 + se * nz + g13 * uz
-        dx = x - qx
-        dy = y - qy
-        dz = z - qz
-        d = math.sqrt(dx * dx + dy * dy + dz * dz)
-        if d >= r or d == 0.0:
-            return -1.0, nx, ny, nz, 0.0, 0.0, 0.0
-        return r - d, dx / d, dy / d, dz / d, qx, qy, qz
+        return _point_contact(x, y, z, r, qx, qy, qz, nx, ny, nz)
     if kind == 3.0:
         # annulus: plane face for g13 <= rho <= g14, else the nearer rim circle (+n side only)
         if h >= r or h <= -r:
@@ -255,13 +258,7 @@ def wall_contact_s(kind, g1, g2, g3, g4, g5, g6, g7, g8, g9, g10, g11, g12, g13,
         qx = g1 + rc * ex / rho
         qy = g2 + rc * ey / rho
         qz = g3 + rc * ez / rho
-        dx = x - qx
-        dy = y - qy
-        dz = z - qz
-        d = math.sqrt(dx * dx + dy * dy + dz * dz)
-        if d >= r or d == 0.0:
-            return -1.0, nx, ny, nz, 0.0, 0.0, 0.0
-        return r - d, dx / d, dy / d, dz / d, qx, qy, qz
+        return _point_contact(x, y, z, r, qx, qy, qz, nx, ny, nz)
     # rectangle
     if h >= r or h <= -r:
         return -1.0, nx, ny, nz, 0.0, 0.0, 0.0
@@ -278,13 +275,7 @@ def wall_contact_s(kind, g1, g2, g3, g4, g5, g6, g7, g8, g9, g10, g11, g12, g13,
         return r - h, nx, ny, nz, qx, qy, qz
     if h < 0.0:
         return -1.0, nx, ny, nz, 0.0, 0.0, 0.0
-    dx = x - qx
-    dy = y - qy
-    dz = z - qz
-    d = math.sqrt(dx * dx + dy * dy + dz * dz)
-    if d >= r or d == 0.0:
-        return -1.0, nx, ny, nz, 0.0, 0.0, 0.0
-    return r - d, dx / d, dy / d, dz / d, qx, qy, qz
+    return _point_contact(x, y, z, r, qx, qy, qz, nx, ny, nz)
 
 
 @kernel(inline="always")
