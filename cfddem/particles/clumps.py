@@ -59,6 +59,7 @@ import numpy as np
 from cfddem._jit import kernel, parallel_kernel, prange
 from cfddem.errors import CaseError
 from cfddem.particles._twin import serial_twin
+from cfddem.particles.integrate import _half_kick
 from cfddem.particles.neighbours import _wrap
 
 # ----------------------------------------------------------------------------------- helpers
@@ -122,19 +123,25 @@ def _rotor(k, dt, I0, I1, I2, p0, p1, p2, q0, q1, q2, q3):
 
 @kernel(inline="always")
 def _half(vx, vy, vz, ax, ay, az, h, rotating, R):
-    """Half kick v += h a with the frame rotation R in the middle (Boris), as integrate._half_kick."""
-    vx += 0.5 * h * ax
-    vy += 0.5 * h * ay
-    vz += 0.5 * h * az
-    if rotating:
-        ux = R[0, 0] * vx + R[0, 1] * vy + R[0, 2] * vz
-        uy = R[1, 0] * vx + R[1, 1] * vy + R[1, 2] * vz
-        uz = R[2, 0] * vx + R[2, 1] * vy + R[2, 2] * vz
-        vx, vy, vz = ux, uy, uz
-    vx += 0.5 * h * ax
-    vy += 0.5 * h * ay
-    vz += 0.5 * h * az
-    return vx, vy, vz
+    """:func:`cfddem.particles.integrate._half_kick` (v += h a, Boris frame rotation R in the
+    middle) with R given as a matrix."""
+    return _half_kick(vx, vy, vz, ax, ay, az, h, rotating, R[0, 0], R[0, 1], R[0, 2], R[1, 0], R[1, 1],
+                      R[1, 2], R[2, 0], R[2, 1], R[2, 2])
+
+
+@kernel(inline="always")
+def _kick_body(vel, vfix, vset, b, ax, ay, az, h, rotating, Rv):
+    """Half kick of body b's velocity, then its held components (``vfix``) set to ``vset``."""
+    vx, vy, vz = _half(vel[b, 0], vel[b, 1], vel[b, 2], ax, ay, az, h, rotating, Rv)
+    if vfix[b, 0] != 0.0:
+        vx = vset[b, 0]
+    if vfix[b, 1] != 0.0:
+        vy = vset[b, 1]
+    if vfix[b, 2] != 0.0:
+        vz = vset[b, 2]
+    vel[b, 0] = vx
+    vel[b, 1] = vy
+    vel[b, 2] = vz
 
 
 @kernel(inline="always")
@@ -196,18 +203,8 @@ def clump_open(nb, start, members, com, vel, L, quat, mass, inert, bforce, btorq
     m2 = 0.0
     for b in prange(nb):
         im = 1.0 / mass[b]
-        vx, vy, vz = _half(vel[b, 0], vel[b, 1], vel[b, 2], (bforce[b, 0] + bext_f[b, 0]) * im,
-                           (bforce[b, 1] + bext_f[b, 1]) * im, (bforce[b, 2] + bext_f[b, 2]) * im,
-                           h, rotating, Rv)
-        if vfix[b, 0] != 0.0:
-            vx = vset[b, 0]
-        if vfix[b, 1] != 0.0:
-            vy = vset[b, 1]
-        if vfix[b, 2] != 0.0:
-            vz = vset[b, 2]
-        vel[b, 0] = vx
-        vel[b, 1] = vy
-        vel[b, 2] = vz
+        _kick_body(vel, vfix, vset, b, (bforce[b, 0] + bext_f[b, 0]) * im, (bforce[b, 1] + bext_f[b, 1]) * im,
+                   (bforce[b, 2] + bext_f[b, 2]) * im, h, rotating, Rv)
         lx, ly, lz = _half(L[b, 0], L[b, 1], L[b, 2], btorque[b, 0] + bext_t[b, 0],
                            btorque[b, 1] + bext_t[b, 1], btorque[b, 2] + bext_t[b, 2], h, rotating, Rw)
         # free rotor in the body frame: pi = R^T L
@@ -236,9 +233,9 @@ def clump_open(nb, start, members, com, vel, L, quat, mass, inert, bforce, btorq
         L[b, 0] = r00 * p0 + r01 * p1 + r02 * p2
         L[b, 1] = r10 * p0 + r11 * p1 + r12 * p2
         L[b, 2] = r20 * p0 + r21 * p1 + r22 * p2
-        com[b, 0] += dt * vx
-        com[b, 1] += dt * vy
-        com[b, 2] += dt * vz
+        com[b, 0] += dt * vel[b, 0]
+        com[b, 1] += dt * vel[b, 1]
+        com[b, 2] += dt * vel[b, 2]
         d2 = _write_members(b, start, members, com, vel, L, quat, inert, pos, pvel, pomg, boff,
                             plen, plo, ref, True)
         m2 = max(m2, d2)
@@ -336,17 +333,7 @@ def clump_close(nb, start, members, com, vel, L, quat, mass, inert, bforce, btor
         cforce[b, 2] = -ftz if vfix[b, 2] != 0.0 else 0.0
         if kick:
             im = 1.0 / M
-            vx, vy, vz = _half(vel[b, 0], vel[b, 1], vel[b, 2], ftx * im, fty * im, ftz * im, h,
-                               rotating, Rv)
-            if vfix[b, 0] != 0.0:
-                vx = vset[b, 0]
-            if vfix[b, 1] != 0.0:
-                vy = vset[b, 1]
-            if vfix[b, 2] != 0.0:
-                vz = vset[b, 2]
-            vel[b, 0] = vx
-            vel[b, 1] = vy
-            vel[b, 2] = vz
+            _kick_body(vel, vfix, vset, b, ftx * im, fty * im, ftz * im, h, rotating, Rv)
             lx, ly, lz = _half(L[b, 0], L[b, 1], L[b, 2], tx + bext_t[b, 0], ty + bext_t[b, 1],
                                tz + bext_t[b, 2], h, rotating, Rw)
             L[b, 0] = lx
