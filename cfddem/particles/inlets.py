@@ -211,19 +211,24 @@ class SluiceInlet:
             vel[:, 2] = self.velocity
             if self.shape is None:
                 system.add_particles(pos[free], vel, rad[free], self.density, held=self.hold_length > 0)
-                self.mass_inserted += float(np.sum(self.density * 4.0 / 3.0 * math.pi * rad[free] ** 3))
             else:
                 q = np.array([random_quaternions(np.random.default_rng([self.seed, k, int(i), 1]), 1)[0]
                               for i in sites[free]])
                 bids = system.add_clumps(self.shape, pos[free], quat=q, vel=vel)
-                self.mass_inserted += float(self.shape.mass) * len(bids)
                 if self.hold_length > 0:
                     c = system.clumps
                     idx = np.arange(c.nb - len(bids), c.nb)  # add_clumps appends
                     c.vfix[idx] = 1.0
                     c.vset[idx] = vel
+            self.mass_inserted += self._sites_mass(rad[free])
             self.count_inserted += int(free.sum())
         return sites[blocked]
+
+    def _sites_mass(self, rad: np.ndarray) -> float:
+        """Mass of the spheres of radii ``rad`` fed at those sites (a pellet each with a shape)."""
+        if self.shape is not None:
+            return float(self.shape.mass) * len(rad)
+        return float(np.sum(self.density * 4.0 / 3.0 * math.pi * rad ** 3))
 
     def _release_pellets(self, system) -> None:
         """Release the held pellets whose centre of mass is past the hold zone (vfix = 0)."""
@@ -253,11 +258,7 @@ class SluiceInlet:
         for k, t_layer, sites in self.pending:
             if self._lattice_shift(t_layer, time) > self.retry_periods * self.lattice.a:
                 self.count_dropped += len(sites)
-                if self.shape is None:
-                    rad = self.radii(k, self.layer_size(k))[sites]
-                    self.mass_dropped += float(np.sum(self.density * 4.0 / 3.0 * math.pi * rad ** 3))
-                else:
-                    self.mass_dropped += float(self.shape.mass) * len(sites)
+                self.mass_dropped += self._sites_mass(self.radii(k, self.layer_size(k))[sites])
                 continue
             left = self._try_sites(system, k, t_layer, sites, time)
             if len(left):
