@@ -21,7 +21,8 @@ entries: no races, thread-independent.
 
 from __future__ import annotations
 
-from cfddem._jit import kernel, parallel_kernel, prange
+from cfddem._jit import kernel, parallel_kernel, prange  # noqa: I001
+from numba import uint64 as U
 
 
 @parallel_kernel
@@ -29,28 +30,36 @@ def predictor_kernel(u, en, p, rhs, S, K, Up, dt, rho, rh, g, di, dj, dk, lo, hi
     """Fill coef and ratio on all faces of component (di, dj, dk) (the unit vector of its
     axis); on the faces [lo, hi) along that axis either update u to u* (``explicit``) or store
     the numerator and denominator of u* (semi-implicit viscosity, solved afterwards).
-    numer/den start at face lo.  Loops follow the memory layout (k fastest)."""
+    numer/den start at face lo.  Loops follow the memory layout (k fastest); indices are cast
+    to unsigned where used (no negative-index test: the loops vectorise)."""
     n0, n1, n2 = coef.shape
     irho = 1.0 / rho
+    i0, j0, k0 = lo * di, lo * dj, lo * dk
+    i1 = hi if di else n0
+    j1 = hi if dj else n1
+    k1 = hi if dk else n2
     for i in prange(n0):
         for j in range(n1):
             for k in range(n2):
                 ia, ja, ka = g + i, g + j, g + k
-                ef = 0.5 * (en[ia - di, ja - dj, ka - dk] + en[ia, ja, ka])
-                d = ef + dt * K[i, j, k] * irho
-                coef[i, j, k] = ef * ef / d
-                ratio[i, j, k] = ef / d
-                f = i * di + j * dj + k * dk  # face index along the component's axis
-                if f >= lo and f < hi:
-                    gradp = (p[ia, ja, ka] - p[ia - di, ja - dj, ka - dk]) * rh
-                    num = ef * u[ia, ja, ka] + dt * (rhs[ia, ja, ka] - ef * gradp * irho)
-                    num += dt * S[i, j, k] * irho
-                    num += dt * K[i, j, k] * Up[i, j, k] * irho
+                ef = 0.5 * (en[U(ia - di), U(ja - dj), U(ka - dk)] + en[U(ia), U(ja), U(ka)])
+                d = ef + dt * K[U(i), U(j), U(k)] * irho
+                coef[U(i), U(j), U(k)] = ef * ef / d
+                ratio[U(i), U(j), U(k)] = ef / d
+            if i >= i0 and i < i1 and j >= j0 and j < j1:
+                for k in range(k0, k1):
+                    ia, ja, ka = g + i, g + j, g + k
+                    ef = 0.5 * (en[U(ia - di), U(ja - dj), U(ka - dk)] + en[U(ia), U(ja), U(ka)])
+                    d = ef + dt * K[U(i), U(j), U(k)] * irho
+                    gradp = (p[U(ia), U(ja), U(ka)] - p[U(ia - di), U(ja - dj), U(ka - dk)]) * rh
+                    num = ef * u[U(ia), U(ja), U(ka)] + dt * (rhs[U(ia), U(ja), U(ka)] - ef * gradp * irho)
+                    num += dt * S[U(i), U(j), U(k)] * irho
+                    num += dt * K[U(i), U(j), U(k)] * Up[U(i), U(j), U(k)] * irho
                     if explicit:
-                        u[ia, ja, ka] = num / d
+                        u[U(ia), U(ja), U(ka)] = num / d
                     else:
-                        numer[i - lo * di, j - lo * dj, k - lo * dk] = num
-                        den[i - lo * di, j - lo * dj, k - lo * dk] = d
+                        numer[U(i - i0), U(j - j0), U(k - k0)] = num
+                        den[U(i - i0), U(j - j0), U(k - k0)] = d
 
 
 @parallel_kernel
@@ -66,7 +75,8 @@ def correction_kernel(u, phi, ratio, fac, g, di, dj, dk, lo, hi):
         for j in range(j0, j1):
             for k in range(k0, k1):
                 ia, ja, ka = g + i, g + j, g + k
-                u[ia, ja, ka] -= fac * ratio[i, j, k] * (phi[ia, ja, ka] - phi[ia - di, ja - dj, ka - dk])
+                u[U(ia), U(ja), U(ka)] -= fac * ratio[U(i), U(j), U(k)] * (
+                    phi[U(ia), U(ja), U(ka)] - phi[U(ia - di), U(ja - dj), U(ka - dk)])
 
 
 @kernel
