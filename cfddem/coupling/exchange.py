@@ -281,20 +281,17 @@ class CoupledGas:
         self._update_inlets()
         # --- 2. drag coefficients ---------------------------------------------------------
         dtg = self.dt_gas
+        vc = grid.cell_volume
         if n:
-            eps_a = np.clip(plan.interpolate(eps, "ccc"), 1e-12, 1.0)
-            u_a = plan.interpolate_faces(gas.u.interior, gas.v.interior, gas.w.interior)
             d = 2.0 * rad
-            slip = np.sqrt(np.sum((u_a - vel) ** 2, axis=1))
-            re = eps_a * self.rho * slip * d / self.mu
+            eps_a, re = plan.interpolate_slip(eps, gas.u.interior, gas.v.interior, gas.w.interior, vel, d,
+                                              self.rho, self.mu)
             K = 3.0 * np.pi * self.mu * d * eps_a * np.asarray(self._F(eps_a, re), dtype=float)
             if self.drag_treatment == "implicit":
                 Keff = -mass * np.expm1(-dtg * K / mass) / dtg
             else:
                 Keff = K
-            DK = plan.deposit_faces(np.repeat(Keff[:, None], 3, axis=1))
-            DKv = plan.deposit_faces(Keff[:, None] * vel)
-            vc = grid.cell_volume
+            DK, DKv = plan.deposit_drag(Keff, vel)
             drag_K = tuple(a / vc for a in DK)
             drag_Up = tuple(np.divide(b, a, out=np.zeros_like(a), where=a > 0) for a, b in zip(DK, DKv))
         else:
@@ -325,27 +322,27 @@ class CoupledGas:
         self.n_couplings += 1
         # --- 4.-6. forces on the particles -------------------------------------------------
         if n:
-            u1 = plan.interpolate_faces(gas.u.interior, gas.v.interior, gas.w.interior)
-            Fd = Keff[:, None] * (u1 - vel)
             g_new = self._face_gradients()
             G = self._centre_from_faces(g_new)
             Gb = self._centre_from_faces(g_new, boundary=True)
-            Fp = np.empty((n, 3))
-            Fb = np.empty((n, 3))
-            for c in range(3):
-                Fp[:, c] = -vol * plan.interpolate(G[c], "ccc")
-                Fb[:, c] = -vol * plan.interpolate(Gb[c], "ccc") if self._has_boundary[c] else 0.0
-            sys_.ext_force[:] = Fd + Fp + Fb
-            self._last["drag_power"] = float(np.sum(Fd * (u1 - vel)))
-            self._last["max_drag_force"] = float(np.max(np.sqrt(np.sum(Fd**2, axis=1))))
+            Gb = [gb if self._has_boundary[c] else None for c, gb in enumerate(Gb)]
+            f = plan.particle_forces(gas.u.interior, gas.v.interior, gas.w.interior, vel, Keff, vol, G, Gb)
+            Fd, Fp, Fb = f["fd"], f["fp"], f["fb"]
+            sys_.ext_force[:] = f["total"]
+            self._last["drag_power"] = float(np.sum(f["power"]))
+            self._last["max_drag_force"] = float(np.max(f["magnitude"]))
             # both sides of the exchange (momentum received), for conservation checks: the
             # particle and gas entries of each pair must sum to zero
-            gas_drag = np.array([dtg * float(np.sum(drag_K[c] * (getattr(gas, "uvw"[c]).interior - drag_Up[c])
-                                                    * self._upd_mask(c))) * vc for c in range(3)])
+            gas_drag = np.empty(3)
+            for c in range(3):
+                lo, hi = gas.bc.face_range[c]
+                s = _sl(c, slice(lo, hi))
+                u_c = getattr(gas, "uvw"[c]).interior
+                gas_drag[c] = dtg * float(np.sum(drag_K[c][s] * (u_c[s] - drag_Up[c][s]))) * vc
             self.last_exchange = {"particle_drag_impulse": dtg * Fd.sum(axis=0),
                                   "gas_drag_impulse": -gas_drag,
                                   "particle_pressure_impulse": dtg * Fp.sum(axis=0),
-                                  "gas_solid_pressure_impulse": self._solid_pressure_impulse(dtg),
+                                  "gas_solid_pressure_impulse": self._solid_pressure_impulse(dtg, g_new),
                                   "particle_boundary_pressure_impulse": dtg * Fb.sum(axis=0)}
         else:
             self._last["drag_power"] = 0.0
@@ -404,13 +401,14 @@ class CoupledGas:
         out = []
         for c in range(3):
             n = grid.shape[c]
-            core = [slice(h, h + grid.shape[e]) for e in range(3)]
-            hi = list(core)
-            lo = list(core)
-            hi[c] = slice(h, h + n + 1)
-            lo[c] = slice(h - 1, h + n)
-            g = (p[tuple(hi)] - p[tuple(lo)]) / grid.spacing[c]
-            out.append(g * self._upd_mask(c))
+            sl = [slice(h, h + grid.shape[e]) for e in range(3)]
+            sl[c] = slice(h - 1, h + n + 1)
+            g = np.diff(p[tuple(sl)], axis=c)
+            g /= grid.spacing[c]
+            lo, hi = self.gas.bc.face_range[c]
+            g[_sl(c, slice(0, lo))] = 0.0
+            g[_sl(c, slice(hi, n + 1))] = 0.0
+            out.append(g)
         return out
 
     def _face_porosity(self):
@@ -492,15 +490,16 @@ class CoupledGas:
             out.append(G)
         return out
 
-    def _solid_pressure_impulse(self, dtg):
+    def _solid_pressure_impulse(self, dtg, grads=None):
         """Gas side of the pressure exchange: of the gas's pressure impulse
         ``-dt_g sum_f eps_f g_f V_cell = -dt_g V_cell sum_f g_f + dt_g sum_f (1 - eps_f) g_f V_cell``
         this returns the second (solid) part, over the updated faces (g is zero elsewhere),
         eps_f from the gas's own (halo-filled) porosity; the first part telescopes to 0 on
-        periodic axes.  The particles' share of 5a should be minus this."""
+        periodic axes.  The particles' share of 5a should be minus this.  ``grads``: the
+        current face gradients if already computed."""
         vc = self.grid.cell_volume
-        return np.array([dtg * vc * float(np.sum((1.0 - ef) * g))
-                         for ef, g in zip(self._face_porosity(), self._face_gradients())])
+        grads = self._face_gradients() if grads is None else grads
+        return np.array([dtg * vc * float(np.sum((1.0 - ef) * g)) for ef, g in zip(self._face_porosity(), grads)])
 
     def _report_low(self, por):
         self._low_reports += 1
