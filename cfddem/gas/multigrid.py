@@ -709,10 +709,10 @@ def _psum(part, n):
 @kernel
 def _pcg(LV, LF, AOFF, AXI, AXF, cE, cN, cT, dg, vE, vN, vT, vdg, vidg, dense, xl, bl, rl, t1, t2, dw, qw, nu, deg,
          lmin, singular, tol, maxiter,
-         bvec, xvec, r, z, p, q, part, ones):
+         bvec, xvec, r, z, p, q, part, ones, atol):
     """Multigrid-preconditioned CG on level 0: A xvec = bvec, from the initial xvec.
 
-    Stops when the true residual ``||b - A x|| <= tol ||b||`` (the recursive residual is
+    Stops when the true residual ``||b - A x|| <= max(tol ||b||, atol)`` (the recursive residual is
     checked each iteration; on apparent convergence the true one is computed and CG
     restarted from it if it is still too large).  Returns (iterations, relative residual).
     Vector operations and the residual run with the x planes in parallel; every inner
@@ -729,11 +729,12 @@ def _pcg(LV, LF, AOFF, AXI, AXF, cE, cN, cT, dg, vE, vN, vT, vdg, vidg, dense, x
         return 0, 0.0
     its = 0
     rel = 0.0
+    thr = max(tol * bn, atol)
     while True:
         _presid(nx, ny, nz, cE, cN, cT, dg, xvec, bvec, r, part)
         rn = _psum(part, nx)
         rel = np.sqrt(rn) / bn
-        if rel <= tol or its >= maxiter or not np.isfinite(rel):
+        if np.sqrt(rn) <= thr or its >= maxiter or not np.isfinite(rel):
             return its, rel
         _vcycle(LV, LF, AOFF, AXI, AXF, vE, vN, vT, vdg, vidg, dense, xl, bl, rl, t1, t2, dw, qw, nu, deg, lmin, r, z,
                 part)
@@ -751,7 +752,7 @@ def _pcg(LV, LF, AOFF, AXI, AXF, cE, cN, cT, dg, vE, vN, vT, vdg, vidg, dense, x
             alpha = rz / pq
             _pupdate(xvec, r, p, q, alpha, nx, m, part)
             rn = _psum(part, nx)
-            if np.sqrt(rn) <= tol * bn or not np.isfinite(rn):
+            if np.sqrt(rn) <= thr or not np.isfinite(rn):
                 break
             _vcycle(LV, LF, AOFF, AXI, AXF, vE, vN, vT, vdg, vidg, dense, xl, bl, rl, t1, t2, dw, qw, nu, deg, lmin,
                     r, z, part)
@@ -995,8 +996,12 @@ class MGPressureSolver:
                 np.ascontiguousarray(r, dtype=np.float64).ravel(), z, self._part)
         return z
 
-    def solve(self, b: np.ndarray, x0: np.ndarray | None = None) -> tuple:
-        """Solve A phi = b (b of shape (nx,ny,nz)); returns (phi, SolveInfo)."""
+    def solve(self, b: np.ndarray, x0: np.ndarray | None = None, atol: float = 0.0) -> tuple:
+        """Solve A phi = b (b of shape (nx,ny,nz)); returns (phi, SolveInfo).
+
+        Converged when ``||b - A phi||_2 <= max(tol ||b||_2, atol)`` (true residual, the
+        operator of :meth:`apply`; ``atol`` an absolute bound in the units of b, 0 by
+        default: the relative criterion alone)."""
         if not self._ready:
             return np.full(self.grid.shape, np.nan), SolveInfo(0, np.inf, False, False, 0.0)
         bv, xv, r, z, p, q = self._vec
@@ -1013,9 +1018,10 @@ class MGPressureSolver:
         its, rel = _pcg(self._LV, self._LF, self._AOFF, self._AXI, self._AXF, self._cE, self._cN, self._cT,
                         self._dg, *self._v, self._dense, self._xl, self._bl, self._rl, self._t1, self._t2, self._dw,
                         self._qw, self.nu, self.chebyshev, 2.0 / self.cheb_ratio, self.singular, self.tol,
-                        self.maxiter, bv, xv, r, z, p, q, self._part, self._ones)
+                        self.maxiter, bv, xv, r, z, p, q, self._part, self._ones, float(atol) * self._vol)
         x = xv.copy()
         if self.singular:
             x -= x.mean()
-        converged = bool(np.isfinite(rel) and rel <= self.tol and np.all(np.isfinite(x)))
+        bnorm = float(np.sqrt(np.dot(bv, bv))) / self._vol
+        converged = bool(np.isfinite(rel) and (rel <= self.tol or rel * bnorm <= atol * (1.0 + 1e-12)) and np.all(np.isfinite(x)))
         return x.reshape(self.grid.shape), SolveInfo(int(its), float(rel), converged, False, compat)

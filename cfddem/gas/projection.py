@@ -102,3 +102,18 @@ def mass_defect_kernel(div, en, eo, dt, g, nx, ny, nz):
                 if v > m or v != v:  # a NaN is kept (nothing compares greater than it)
                     m = v
     return m * dt
+
+
+@kernel
+def max_abs_kernel(a, g, n0, n1, n2):
+    """max |a| over the interior entries a[g:g+n0, g:g+n1, g:g+n2]; NaN if any entry is NaN
+    (inf if any is infinite), so one pass gives both the Courant number and the finiteness
+    test."""
+    m = 0.0
+    for i in range(g, g + n0):
+        for j in range(g, g + n1):
+            for k in range(g, g + n2):
+                v = abs(a[U(i), U(j), U(k)])
+                if v > m or v != v:  # a NaN is kept (nothing compares greater than it)
+                    m = v
+    return m
