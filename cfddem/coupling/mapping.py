@@ -480,14 +480,30 @@ class MappingPlan:
         su, sv, sw = plan.deposit_faces(force)
 
     The plan holds references to nothing but its own arrays; build a new one when the
-    particles move.
+    particles move.  ``workspace``: a dict kept by the caller and handed to every plan; the
+    plan's weights and the outputs of the fused methods (``interpolate_slip``,
+    ``deposit_drag``, ``particle_forces``) then live in it and are overwritten by the next
+    plan with the same workspace (copy what must outlive it).
     """
 
-    def __init__(self, grid, pos, periodic=None):
+    def __init__(self, grid, pos, periodic=None, workspace=None):
         self.spec = as_grid_spec(grid)
         self.pos = _positions(pos)
         self.periodic = _periodic(periodic)
         self._w = {}
+        # arrays kept by the caller between plans (a coupling step builds one plan per step):
+        # first-touch page faults of fresh multi-megabyte arrays cost more than the kernels
+        self._ws = workspace if workspace is not None else {}
+
+    def _buf(self, key, shape, dtype=np.float64, zero=False):
+        """A work array from the workspace (reused when the shape matches)."""
+        arr = self._ws.get(key)
+        if arr is None or arr.shape != tuple(shape) or arr.dtype != dtype:
+            arr = np.empty(shape, dtype)
+            self._ws[key] = arr
+        if zero:
+            arr.fill(0.0)
+        return arr
 
     @property
     def n(self) -> int:
@@ -500,10 +516,10 @@ class MappingPlan:
         if not self._w:
             axes = [_axes(self.spec, loc, self.periodic) for loc in LOCATIONS]
             m = self.n
-            a0 = np.empty((4, m, 3), np.int64)
-            a1 = np.empty((4, m, 3), np.int64)
-            w0 = np.empty((4, m, 3))
-            w1 = np.empty((4, m, 3))
+            a0 = self._buf("a0", (4, m, 3), np.int64)
+            a1 = self._buf("a1", (4, m, 3), np.int64)
+            w0 = self._buf("w0", (4, m, 3))
+            w1 = self._buf("w1", (4, m, 3))
             if m:
                 par = [np.ascontiguousarray(np.stack([getattr(ax, k) for ax in axes]))
                        for k in ("x0", "h", "n", "per", "lo", "hi", "bmin", "smin", "smax")]
@@ -613,8 +629,8 @@ class MappingPlan:
         fu, fv, fw = (_array(f, node_shape(spec, loc), loc + " field") for f, loc in zip((u, v, w), FACE_LOCATIONS))
         vel = self._vel(vel)
         d = self._per_particle(diameter, "diameter")
-        eps_a = np.empty(self.n)
-        re = np.empty(self.n)
+        eps_a = self._buf("eps_a", (self.n,))
+        re = self._buf("re", (self.n,))
         if self.n:
             args, live = self._all_weights()
             _slip_kernel(*args, live, eps, fu, fv, fw, vel, d, float(rho), float(mu), eps_a, re)
@@ -630,8 +646,8 @@ class MappingPlan:
         dk, dkv = [], []
         for comp, loc in enumerate(FACE_LOCATIONS):
             wt = self.weights(loc)
-            a = np.zeros(wt.ax.shape)
-            b = np.zeros(wt.ax.shape)
+            a = self._buf("dk" + loc, wt.ax.shape, zero=True)
+            b = self._buf("dkv" + loc, wt.ax.shape, zero=True)
             if self.n and not wt.ax.dead:
                 _scatter_drag_kernel(wt.a0, wt.a1, wt.w0, wt.w1, k, vel, comp, a, b)
             dk.append(a)
@@ -658,9 +674,9 @@ class MappingPlan:
         has_b = np.array([0 if b is None else 1 for b in boundary], np.int64)
         B = [zero if b is None else _array(b, spec.shape, "centre field") for b in boundary]
         n = self.n
-        out = {key: np.zeros((n, 3)) for key in ("fd", "fp", "fb", "total")}
-        out["power"] = np.zeros(n)
-        out["magnitude"] = np.zeros(n)
+        out = {key: self._buf(key, (n, 3), zero=True) for key in ("fd", "fp", "fb", "total")}
+        out["power"] = self._buf("power", (n,), zero=True)
+        out["magnitude"] = self._buf("magnitude", (n,), zero=True)
         if n:
             args, live = self._all_weights()
             _force_kernel(*args, live, fu, fv, fw, *G, *B, has_b, vel, k, vol, out["fd"], out["fp"], out["fb"],

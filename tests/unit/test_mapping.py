@@ -132,8 +132,8 @@ def test_deposit_and_interpolate_are_adjoint(periodic):
     assert abs(lhs - rhs) <= 1e-12 * np.sum(np.abs(val)) * np.abs(cf).max()
 
 
-def test_gather_equals_naive_scatter():
-    """The race-free gather gives what a serial scatter-add with the same weights gives."""
+def test_deposit_equals_numpy_scatter():
+    """The serial scatter kernel gives what numpy's add.at with the same weights gives."""
     rng = np.random.default_rng(6)
     pts = random_points(rng, 2000)
     val = rng.uniform(size=2000)
@@ -294,3 +294,67 @@ def test_plan_reuses_weights_and_matches_functions():
     w_before = plan.weights("fcc")
     plan.deposit_faces(f)
     assert plan.weights("fcc") is w_before  # cached, not recomputed
+
+
+@pytest.mark.parametrize("periodic", [(False, False, False), (True, False, True)])
+def test_fused_coupling_kernels_match_single_field_methods_and_threads(periodic):
+    """interpolate_slip, deposit_drag and particle_forces: the same numbers as the single-field
+    methods with the numpy formulas (interpolations bit-identical, deposits to round-off),
+    bit-identical for 1 and 2 threads, also when reusing a workspace."""
+    rng = np.random.default_rng(11)
+    n = 3000
+    pts = random_points(rng, n)
+    vel = rng.normal(size=(n, 3))
+    d = rng.uniform(1e-3, 3e-3, n)
+    keff = rng.uniform(0.0, 1e-3, n)
+    vol = np.pi * d**3 / 6.0
+    eps = rng.uniform(0.3, 1.0, SPEC.shape)
+    u = [rng.normal(size=M.node_shape(SPEC, loc)) for loc in ("fcc", "cfc", "ccf")]
+    G = [rng.normal(size=SPEC.shape) for _ in range(3)]
+    Gb = []
+    for c in range(3):  # boundary fields: nonzero in the first and last layers only
+        g = np.zeros(SPEC.shape)
+        sl = [slice(None)] * 3
+        sl[c] = [0, SPEC.shape[c] - 1]
+        g[tuple(sl)] = rng.normal(size=g[tuple(sl)].shape)
+        Gb.append(g)
+    Gb[1] = None
+    rho, mu = 1.2, 1.8e-5
+    plan = M.MappingPlan(SPEC, pts, periodic)
+    eps_ref = np.clip(plan.interpolate(eps, "ccc"), 1e-12, 1.0)
+    ua = plan.interpolate_faces(*u)
+    re_ref = eps_ref * rho * np.sqrt(np.sum((ua - vel) ** 2, axis=1)) * d / mu
+    dk_ref = plan.deposit_faces(np.repeat(keff[:, None], 3, axis=1))
+    dkv_ref = plan.deposit_faces(keff[:, None] * vel)
+    fd_ref = keff[:, None] * (ua - vel)
+    fp_ref = np.stack([-vol * plan.interpolate(G[c], "ccc") for c in range(3)], axis=1)
+    fb_ref = np.stack([-vol * plan.interpolate(Gb[c], "ccc") if Gb[c] is not None else np.zeros(n)
+                       for c in range(3)], axis=1)
+    prev = numba.get_num_threads()
+    runs = []
+    ws = {}
+    try:
+        for nt in (1, min(2, numba.config.NUMBA_NUM_THREADS)):
+            numba.set_num_threads(nt)
+            p = M.MappingPlan(SPEC, pts, periodic, workspace=ws)
+            e_a, re = (x.copy() for x in p.interpolate_slip(eps, *u, vel, d, rho, mu))
+            dk, dkv = (tuple(a.copy() for a in t) for t in p.deposit_drag(keff, vel))
+            f = {k: v.copy() for k, v in p.particle_forces(*u, vel, keff, vol, G, Gb).items()}
+            runs.append((e_a, re, dk, dkv, f))
+    finally:
+        numba.set_num_threads(prev)
+    e_a, re, dk, dkv, f = runs[0]
+    assert np.array_equal(e_a, eps_ref)
+    np.testing.assert_allclose(re, re_ref, rtol=1e-14, atol=0.0)
+    for a, b in zip(dk + dkv, dk_ref + dkv_ref):
+        np.testing.assert_allclose(a, b, rtol=1e-13, atol=1e-13 * np.abs(b).max())
+    assert np.array_equal(f["fd"], fd_ref) and np.array_equal(f["fp"], fp_ref) and np.array_equal(f["fb"], fb_ref)
+    assert np.array_equal(f["total"], fd_ref + fp_ref + fb_ref)
+    np.testing.assert_allclose(f["power"].sum(), np.sum(fd_ref * (ua - vel)), rtol=1e-12)
+    np.testing.assert_allclose(f["magnitude"], np.linalg.norm(fd_ref, axis=1), rtol=1e-14)
+    r1, r2 = runs
+    assert np.array_equal(r1[0], r2[0]) and np.array_equal(r1[1], r2[1])
+    for a, b in zip(r1[2] + r1[3], r2[2] + r2[3]):
+        assert np.array_equal(a, b)
+    for k in r1[4]:
+        assert np.array_equal(r1[4][k], r2[4][k])
