@@ -88,45 +88,55 @@ SIDES = ("x-", "x+", "y-", "y+", "z-", "z+")
 def _fine_coefficients(ax, ay, az, sc, dirich, periodic, cE, cN, cT, dX, dY, dZ):
     """Level-0 weights (volume-scaled): cE[U(c)] couples c to its +x neighbour (wrapping), zero
     at non-periodic +x sides; dX: Dirichlet boundary terms.  sc[d] = V / h_d^2.  x planes in
-    parallel (each cell writes its own entries)."""
+    parallel (each cell writes its own entries).  The k loop has no branches (the k = 0 and
+    k = nz - 1 entries are fixed after it), so it vectorises."""
     nx, ny, nz = ax.shape[0] - 1, ay.shape[1] - 1, az.shape[2] - 1
     for i in prange(nx):
+        cutx = i == nx - 1 and (periodic[0] == 0 or nx == 1)
         for j in range(ny):
+            cuty = j == ny - 1 and (periodic[1] == 0 or ny == 1)
+            row = (i * ny + j) * nz
             for k in range(nz):
-                c = (i * ny + j) * nz + k
-                # x
-                w = ax[i + 1, j, k] * sc[0]
-                if i == nx - 1 and (periodic[0] == 0 or nx == 1):
-                    w = 0.0
-                cE[U(c)] = w
+                c = row + k
+                cE[U(c)] = 0.0 if cutx else ax[U(i + 1), U(j), U(k)] * sc[0]
+                cN[U(c)] = 0.0 if cuty else ay[U(i), U(j + 1), U(k)] * sc[1]
+                cT[U(c)] = az[U(i), U(j), U(k + 1)] * sc[2]
+                dZ[U(c)] = 0.0
+            if i == 0 or i == nx - 1:
+                for k in range(nz):
+                    d = 0.0
+                    if i == 0 and dirich[0] == 1:
+                        d += 2.0 * ax[U(0), U(j), U(k)] * sc[0]
+                    if i == nx - 1 and dirich[1] == 1:
+                        d += 2.0 * ax[U(nx), U(j), U(k)] * sc[0]
+                    dX[U(row + k)] = d
+            else:
+                for k in range(nz):
+                    dX[U(row + k)] = 0.0
+            if j == 0 or j == ny - 1:
+                for k in range(nz):
+                    d = 0.0
+                    if j == 0 and dirich[2] == 1:
+                        d += 2.0 * ay[U(i), U(0), U(k)] * sc[1]
+                    if j == ny - 1 and dirich[3] == 1:
+                        d += 2.0 * ay[U(i), U(ny), U(k)] * sc[1]
+                    dY[U(row + k)] = d
+            else:
+                for k in range(nz):
+                    dY[U(row + k)] = 0.0
+            if periodic[2] == 0 or nz == 1:
+                cT[U(row + nz - 1)] = 0.0
+            d = 0.0
+            if dirich[4] == 1:
+                d += 2.0 * az[U(i), U(j), U(0)] * sc[2]
+            if nz == 1 and dirich[5] == 1:
+                d += 2.0 * az[U(i), U(j), U(nz)] * sc[2]
+            dZ[U(row)] = d
+            if nz > 1:
                 d = 0.0
-                if i == 0 and dirich[0] == 1:
-                    d += 2.0 * ax[0, j, k] * sc[0]
-                if i == nx - 1 and dirich[1] == 1:
-                    d += 2.0 * ax[nx, j, k] * sc[0]
-                dX[U(c)] = d
-                # y
-                w = ay[i, j + 1, k] * sc[1]
-                if j == ny - 1 and (periodic[1] == 0 or ny == 1):
-                    w = 0.0
-                cN[U(c)] = w
-                d = 0.0
-                if j == 0 and dirich[2] == 1:
-                    d += 2.0 * ay[i, 0, k] * sc[1]
-                if j == ny - 1 and dirich[3] == 1:
-                    d += 2.0 * ay[i, ny, k] * sc[1]
-                dY[U(c)] = d
-                # z
-                w = az[i, j, k + 1] * sc[2]
-                if k == nz - 1 and (periodic[2] == 0 or nz == 1):
-                    w = 0.0
-                cT[U(c)] = w
-                d = 0.0
-                if k == 0 and dirich[4] == 1:
-                    d += 2.0 * az[i, j, 0] * sc[2]
-                if k == nz - 1 and dirich[5] == 1:
-                    d += 2.0 * az[i, j, nz] * sc[2]
-                dZ[U(c)] = d
+                if dirich[5] == 1:
+                    d += 2.0 * az[U(i), U(j), U(nz)] * sc[2]
+                dZ[U(row + nz - 1)] = d
 
 
 @kernel
