@@ -23,8 +23,14 @@ cores), split into predictor (momentum right-hand side and predictor kernels), p
 and the ratios amg/mg and 1 thread / t threads measured in the same round.
 
 Usage: python benchmarks/gas_step.py [--steps 20] [--repeats 3] [--threads 1,2] [--tol 1e-8]
-                                     [--no-cube] [--no-amg]
+                                     [--no-cube] [--no-amg] [--json]
        python benchmarks/gas_step.py --tol-sweep      (mg iterations and defect against tol)
+       python benchmarks/gas_step.py --compare DIR [--repeats 3] [--steps 20]
+           before/after in one command: DIR holds an older ``cfddem`` package (for example
+           ``git archive <commit> cfddem | tar -x -C DIR``); each repeat runs this script once
+           with that package and once with the current one (separate processes, alternated,
+           mg, 1 thread, chute grid), and prints ranges and the old/new ratio;
+           ``--particles CHECKPOINT`` adds the particle step of the chute (no gas, 1 thread)
 """
 
 from __future__ import annotations
@@ -217,6 +223,80 @@ def tol_sweep(steps):
               f"max mass-balance defect per step {r['defect']:.1e}, CPU {r['cpu']:.1f} ms/step")
 
 
+def particle_step_cost(checkpoint, t_start=1.743, end_time=1.76, short=0.0005):
+    """CPU and wall time per particle step of the 16 rpm chute without gas, 1 numba thread,
+    branched from a developed checkpoint (copied: the runs must not touch the original).
+    Two runs, to the checkpoint time ``t_start`` + ``short`` and to ``end_time``; the difference of their
+    child-process CPU times over the difference of their step counts removes the start-up
+    (imports, numba cache loading, reading the checkpoint)."""
+    import re
+    import resource
+    import shutil
+    import subprocess
+    import sys
+    import tempfile
+    tmp = tempfile.mkdtemp(prefix="gas_step_particles_")
+    ck = os.path.join(tmp, "start.h5")
+    shutil.copy(checkpoint, ck)
+    repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = dict(os.environ, NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1", PYTHONPATH=repo)
+    res = []
+    t_end = [t_start + short, end_time]
+    for n in range(2):
+        c0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        out = subprocess.run([sys.executable, "-m", "cfddem.cli", "run", os.path.join(repo, "cases", "chute_16rpm"),
+                              "--set", "gas.enabled=false", "--set", f"checkpoint.start_from={ck}",
+                              "--set", f"time.end_time={t_end[n]}", "--set", "output.vtk=false",
+                              "--set", "measurements.start_time=0", "--out", os.path.join(tmp, f"out{n}"),
+                              "--overwrite"], env=env, capture_output=True, text=True, cwd=repo)
+        c1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        log = out.stdout + out.stderr
+        m0 = re.search(r"at t = [0-9.]+ s \(step (\d+), (\d+) particles\)", log)
+        m1 = re.search(r"after (\d+) steps, ([0-9.]+) s wall \(particles ([0-9.]+) s", log)
+        if out.returncode != 0 or not (m0 and m1):
+            print("particle run failed:", log[-2000:])
+            shutil.rmtree(tmp, ignore_errors=True)
+            return
+        res.append((int(m1.group(1)) - int(m0.group(1)), (c1.ru_utime + c1.ru_stime) - (c0.ru_utime + c0.ru_stime),
+                    float(m1.group(2)), float(m1.group(3)), m0.group(2)))
+    shutil.rmtree(tmp, ignore_errors=True)
+    (s0, cpu0, w0, p0, _), (s1, cpu1, w1, p1, npart) = res
+    ds = s1 - s0
+    print(f"chute particle step ({npart} particles, 1 thread, no gas, {s1} steps against {s0}): "
+          f"CPU {(cpu1 - cpu0) / ds * 1e3:.2f} ms per step (difference of the two runs), "
+          f"wall {(w1 - w0) / ds * 1e3:.2f} ms (particle part {(p1 - p0) / ds * 1e3:.2f} ms)")
+
+
+def compare(old_dir, repeats, steps):
+    """Alternate subprocess runs of this benchmark with the package in ``old_dir`` and with the
+    current one (chute grid, mg, 1 thread); print ranges and ratios old/new per repeat."""
+    import json
+    import subprocess
+    import sys
+    here = os.path.dirname(os.path.abspath(__file__))
+    repo = os.path.dirname(here)
+    res = {"old": [], "new": []}
+    for _ in range(repeats):
+        for tag, path in (("old", old_dir), ("new", repo)):
+            env = dict(os.environ, PYTHONPATH=path)
+            if tag == "old":  # its own numba cache: the old kernels have the same names
+                env["NUMBA_CACHE_DIR"] = os.environ.get("NUMBA_CACHE_DIR", "/tmp/numba_cache") + "_compare_old"
+            out = subprocess.run([sys.executable, os.path.abspath(__file__), "--no-amg", "--no-cube", "--threads", "1",
+                                  "--repeats", "1", "--steps", str(steps), "--json"], env=env, cwd="/tmp",
+                                 capture_output=True, text=True, check=True).stdout
+            res[tag].append(json.loads(out.strip().splitlines()[-1]))
+    for kind in ("eps1", "bed"):
+        for tag in ("old", "new"):
+            r = [x[kind]["mg1"][0] for x in res[tag]]
+            print(f"chute {kind:4s} {tag}: CPU {fmt_range([x['cpu'] for x in r], 10)} ms/step, "
+                  f"wall {fmt_range([x['wall'] for x in r], 10)} ms (predictor {fmt_range([x['pred'] for x in r])}, "
+                  f"pressure {fmt_range([x['pres'] for x in r])}, rest {fmt_range([x['rest'] for x in r])}); "
+                  f"pressure iterations {r[0]['its']:.1f} (max {r[0]['maxits']}), mass defect {r[0]['defect']:.1e}")
+        rc = [o[kind]["mg1"][0]["cpu"] / n[kind]["mg1"][0]["cpu"] for o, n in zip(res["old"], res["new"])]
+        rw = [o[kind]["mg1"][0]["wall"] / n[kind]["mg1"][0]["wall"] for o, n in zip(res["old"], res["new"])]
+        print(f"chute {kind:4s} old/new: CPU x{fmt_range(rc, 4, 2)}, wall x{fmt_range(rw, 4, 2)}")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--steps", type=int, default=20)
@@ -226,7 +306,17 @@ def main(argv=None):
     ap.add_argument("--tol", type=float, default=1e-8)
     ap.add_argument("--no-cube", action="store_true", help="skip the 64^3 grid")
     ap.add_argument("--tol-sweep", action="store_true", help="only the tolerance sweep (mg, chute bed)")
+    ap.add_argument("--json", action="store_true", help="print the results as one JSON line at the end")
+    ap.add_argument("--compare", metavar="DIR", help="before/after: alternate runs with the cfddem package in DIR")
+    ap.add_argument("--particles", metavar="CHECKPOINT",
+                    help="with --compare: also time the particle step of the chute (no gas, 1 thread) from this "
+                         "developed checkpoint (copied), to 1.76 s")
     a = ap.parse_args(argv)
+    if a.compare:
+        compare(a.compare, a.repeats, a.steps)
+        if a.particles:
+            particle_step_cost(a.particles)
+        return
     threads = tuple(int(t) for t in a.threads.split(","))
     solvers = ("mg",) if a.no_amg else ("mg", "amg")
     nt = set_threads(threads[0])
@@ -251,6 +341,9 @@ def main(argv=None):
             key = f"{sv}{threads[0]}"
             c = min(x["cpu"] for x in out["cube"][key]) / min(x["cpu"] for x in out["bed"][key])
             print(f"cost growth {sv}: cells x{gc.ncells / g.ncells:.1f} -> CPU time x{c:.1f}")
+    if a.json:
+        import json
+        print(json.dumps(out))
 
 
 if __name__ == "__main__":
