@@ -25,6 +25,7 @@ and the ratios amg/mg and 1 thread / t threads measured in the same round.
 Usage: python benchmarks/gas_step.py [--steps 20] [--repeats 3] [--threads 1,2] [--tol 1e-8]
                                      [--no-cube] [--no-amg] [--json]
        python benchmarks/gas_step.py --tol-sweep      (mg iterations and defect against tol)
+       python benchmarks/gas_step.py --defect-sweep   (mg iterations and defect against defect_tol)
        python benchmarks/gas_step.py --compare DIR [--repeats 3] [--steps 20]
            before/after in one command: DIR holds an older ``cfddem`` package (for example
            ``git archive <commit> cfddem | tar -x -C DIR``); each repeat runs this script once
@@ -297,6 +298,27 @@ def compare(old_dir, repeats, steps):
         print(f"chute {kind:4s} old/new: CPU x{fmt_range(rc, 4, 2)}, wall x{fmt_range(rw, 4, 2)}")
 
 
+def defect_sweep(steps):
+    """mg on the chute (eps = 1 and bed), tol 1e-8: iterations and mass-balance defect
+    against GasSolver's defect_tol (0: the relative criterion alone)."""
+    dt = 1e-3
+    for kind in ("eps1", "bed"):
+        for dtol in (0.0, 1e-11, 1e-10, 1e-9, 1e-8):
+            g, s = chute_solver()
+            s.defect_tol = dtol
+            eps, K, Up = chute_fields(g, kind, steps + 6)
+            s.set_porosity(eps[0])
+            its, d = [], []
+            for i in range(steps + 5):
+                s.set_porosity(eps[1 + i])
+                info = s.step(dt, drag_K=K, drag_Up=Up)
+                if i >= 5:
+                    its.append(info.pressure_iterations)
+                    d.append(info.max_divergence)
+            print(f"chute {kind:4s} defect_tol {dtol:7.0e}: pressure iterations {np.mean(its):5.2f} "
+                  f"(max {max(its)}), max mass-balance defect per step {max(d):.1e}")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--steps", type=int, default=20)
@@ -306,6 +328,7 @@ def main(argv=None):
     ap.add_argument("--tol", type=float, default=1e-8)
     ap.add_argument("--no-cube", action="store_true", help="skip the 64^3 grid")
     ap.add_argument("--tol-sweep", action="store_true", help="only the tolerance sweep (mg, chute bed)")
+    ap.add_argument("--defect-sweep", action="store_true", help="only the defect_tol sweep (mg, chute)")
     ap.add_argument("--json", action="store_true", help="print the results as one JSON line at the end")
     ap.add_argument("--compare", metavar="DIR", help="before/after: alternate runs with the cfddem package in DIR")
     ap.add_argument("--particles", metavar="CHECKPOINT",
@@ -324,6 +347,9 @@ def main(argv=None):
           f"times: range over the repeats")
     if a.tol_sweep:
         tol_sweep(a.steps)
+        return
+    if a.defect_sweep:
+        defect_sweep(a.steps)
         return
     dt = 1e-3
     g, _ = chute_solver()
