@@ -1,6 +1,6 @@
 """Fluidisation curve of a CFD-DEM bed for the five drag closures.
 
-    python benchmarks/fluidisation.py --out DIR [--closures beetstra,wen_yu] [--t-average 0.8]
+    python benchmarks/fluidisation.py --out DIR [--closures beetstra,wen_yu] [--bed deep|wide] [--t-average 0.8]
     python benchmarks/fluidisation.py --out DIR --plot-only      # chart from DIR/fluidisation_*.json
 
 The column (:func:`build_column`, :func:`cfddem.coupling.exchange.column_gas`): glass spheres
@@ -8,12 +8,22 @@ The column (:func:`build_column`, :func:`cfddem.coupling.exchange.column_gas`): 
 floor wall at y = 0 through which the gas enters with a prescribed superficial velocity U
 (an ideal distributor plate: each bottom cell receives the flux U times its area; the
 particles cannot pass), pressure outlet p = 0 on top (y = Ly), and a lid wall there for the
-particles.  The default bed (:data:`DEFAULT`) is *wide and thin*: pseudo-2-D, 16 x 20 x 1 gas
-cells of 1.5 mm (24 mm wide, 1.5 mm deep, 30 mm high), 3200 particles of 0.5 mm, bed about
-9 mm = 6 cells high (H/W about 0.4), in which bubbles form.  Narrower columns (2 x 2 or 3 x 3
-cells) and shallow beds (2-3 cells high) slug, the bed rising as a plug and falling back onto
-the distributor, so that the floor carried 3 to 15 % of the weight on average
-(docs/coupling.md, "The fluidisation plateau").
+particles.  Two beds (:data:`BEDS`), both pseudo-2-D with 16 gas cells of 1.5 mm across
+(24 mm wide, 1.5 mm deep) and particles of 0.5 mm, in which bubbles form:
+
+* ``deep`` (the default, :data:`DEEP`): 6400 particles, 16 x 40 x 1 cells (60 mm high), bed
+  about 18 mm = 12 cells high (H/W about 0.75); plateau read at 1.5, 2.0, 2.5 U_mf;
+* ``wide`` (:data:`WIDE`, the default until the plateau study of docs/fluidisation/README.md):
+  3200 particles, 16 x 20 x 1 cells (30 mm high), bed about 9 mm = 6 cells high (H/W about
+  0.4); plateau read at 1.3, 1.7, 2.2 U_mf.
+
+The distributor carries a load of about 4 Pa in both (particles falling back into the voids
+that bubbles leave at the distributor and onto the bed after eruptions pass that momentum
+down the dense bottom layer to the plate): about 3 % of the wide bed's weight, 1.3 % of the
+deep bed's (docs/fluidisation/README.md).  Narrower columns (2 x 2 or 3 x 3 cells) and shallow
+beds (2-3 cells high) slug, the bed rising as a plug and falling back onto the distributor, so
+that the floor carried 3 to 15 % of the weight on average (docs/coupling.md, "The
+fluidisation plateau").
 
 Measured quantities (:func:`sample`):
 
@@ -39,7 +49,9 @@ drop of the closure, ``dp = sum_a K_a(eps_a, Re) U/eps_a^2 / A`` (``K = 3 pi mu 
 levels off at W.  The measured U_mf is where the fit ``dp = a U + b U^2`` of the fixed-bed
 points reaches W (:func:`umf_from_curve`); it is compared with
 :func:`drag.minimum_fluidisation_velocity` at the mean porosity the particles see before the
-gas is switched on.
+gas is switched on (each row's ``eps_seen_before`` is that porosity when its U was switched on:
+in the deep bed the soft contacts unload as the gas takes the weight, 0.395 at rest to 0.401
+at 0.85 U_mf, and U_mf moves with it, docs/fluidisation/README.md).
 
 Writes DIR/fluidisation_<closure>.json per closure and DIR/fluidisation.json (all) and
 DIR/fluidisation.png (dp/W against U/U_mf, with the weight line, and dp against U); prints a
@@ -66,8 +78,18 @@ from cfddem.particles.walls import PlaneWall
 
 RHO_G, MU, G, RHO_P = 1.2, 1.8e-5, 9.81, 2550.0
 
-#: the default (non-slugging) bed: pseudo-2-D, 16 x 20 x 1 cells of 1.5 mm, 3200 spheres of 0.5 mm
-DEFAULT = dict(n_particles=3200, cells=(16, 20, 1), d=5e-4, h=1.5e-3, k_n=10.0, dt=1.25e-5, coupling_interval=8)
+#: the wide bed (pseudo-2-D, 16 x 20 x 1 cells of 1.5 mm, 3200 spheres of 0.5 mm, bed about 9 mm high):
+#: it bubbles, but the distributor carries about 4 Pa = 3 % of its weight (docs/coupling.md)
+WIDE = dict(n_particles=3200, cells=(16, 20, 1), d=5e-4, h=1.5e-3, k_n=10.0, dt=1.25e-5, coupling_interval=8)
+#: the deep bed (the default): the same width and particles, twice as deep (6400 spheres, bed about
+#: 18 mm = 12 cells high, H/W about 0.75) in a column of 16 x 40 x 1 cells (60 mm): the distributor's
+#: share, about 4 Pa whatever the depth, falls to about 1.3 % of the weight
+DEEP = dict(WIDE, n_particles=6400, cells=(16, 40, 1))
+#: bed name -> (column, U/U_mf steps: fixed-bed points below 0.95, plateau points above, settling
+#: time with the gas at rest [s]; the deep bed is poured from twice the height)
+BEDS = {"deep": (DEEP, (0.2, 0.4, 0.6, 0.75, 0.85, 1.5, 2.0, 2.5), 0.25),
+        "wide": (WIDE, (0.2, 0.4, 0.6, 0.75, 0.85, 1.3, 1.7, 2.2), 0.2)}
+DEFAULT = DEEP
 
 
 def build_column(n_particles=3200, d=1e-3, rho_p=RHO_P, closure="beetstra", cells=(16, 20, 1), h=3e-3,
@@ -215,16 +237,20 @@ def umf_from_curve(rows, weight, fixed_fraction=0.8):
     return (-a + math.sqrt(disc)) / (2 * b), (a, b)
 
 
-FACTORS = (0.2, 0.4, 0.6, 0.75, 0.85, 1.3, 1.7, 2.2)
+FACTORS = BEDS["deep"][1]
 
 
-def run_closure(name, factors=FACTORS, t_average=0.8, t_transient=0.15, **column):
-    """The stepped curve for one closure; returns the JSON-able result dict."""
+def run_closure(name, factors=None, t_average=0.8, t_transient=0.15, bed="deep", **column):
+    """The stepped curve for one closure on bed ``bed`` (a key of :data:`BEDS`, its column
+    updated by ``column``; ``factors`` default: the bed's U/U_mf steps); returns the JSON-able
+    result dict."""
     t0 = time.perf_counter()
-    cfg = dict(DEFAULT)
+    base, bed_factors, t_settle = BEDS[bed]
+    factors = bed_factors if factors is None else factors
+    cfg = dict(base)
     cfg.update(column)
     sys_, cg = build_column(closure=name, **cfg)
-    run(sys_, cg, 0.2)
+    run(sys_, cg, t_settle)
     eps_mf = bed_porosity_seen(sys_, cg)
     d = float(2 * sys_.radius[0])
     u_mf = drag.minimum_fluidisation_velocity(eps_mf, RHO_P, RHO_G, d, MU, closure=name)
@@ -236,7 +262,7 @@ def run_closure(name, factors=FACTORS, t_average=0.8, t_transient=0.15, **column
         umf, fit = float("nan"), (float("nan"), float("nan"))
     wall = time.perf_counter() - t0
     cfg["cells"] = list(cfg["cells"])
-    return dict(closure=name, column=cfg, rows=rows, weight_per_area=W, eps_mf=eps_mf, umf=umf,
+    return dict(closure=name, bed=bed, column=cfg, rows=rows, weight_per_area=W, eps_mf=eps_mf, umf=umf,
                 umf_closure=u_mf, fit=list(fit), wall_time=wall, t_average=t_average, t_transient=t_transient)
 
 
@@ -299,19 +325,25 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", required=True)
     ap.add_argument("--closures", default=",".join(drag.CLOSURES))
-    ap.add_argument("--particles", type=int, default=DEFAULT["n_particles"])
-    ap.add_argument("--cells", default=",".join(str(c) for c in DEFAULT["cells"]), help="gas cells nx,ny,nz")
+    ap.add_argument("--bed", default="deep", choices=sorted(BEDS), help="column (BEDS): deep (default) or wide")
+    ap.add_argument("--particles", type=int, default=None, help="number of particles (default: the bed's)")
+    ap.add_argument("--cells", default=None, help="gas cells nx,ny,nz (default: the bed's)")
     ap.add_argument("--t-average", type=float, default=0.8, help="averaging time per fluidised point [s]")
     ap.add_argument("--t-transient", type=float, default=0.15, help="transient after each step [s]")
-    ap.add_argument("--factors", default=",".join(str(f) for f in FACTORS), help="U / U_mf(closure) steps")
+    ap.add_argument("--factors", default=None, help="U / U_mf(closure) steps (default: the bed's)")
     ap.add_argument("--plot-only", action="store_true", help="only merge DIR/fluidisation_*.json and plot")
     args = ap.parse_args(argv)
     os.makedirs(args.out, exist_ok=True)
     if not args.plot_only:
+        column = {}
+        if args.particles is not None:
+            column["n_particles"] = args.particles
+        if args.cells is not None:
+            column["cells"] = tuple(int(c) for c in args.cells.split(","))
+        factors = None if args.factors is None else [float(f) for f in args.factors.split(",")]
         for name in args.closures.split(","):
-            r = run_closure(name, factors=[float(f) for f in args.factors.split(",")], t_average=args.t_average,
-                            t_transient=args.t_transient, n_particles=args.particles,
-                            cells=tuple(int(c) for c in args.cells.split(",")))
+            r = run_closure(name, factors=factors, t_average=args.t_average, t_transient=args.t_transient,
+                            bed=args.bed, **column)
             with open(os.path.join(args.out, f"fluidisation_{name}.json"), "w") as f:
                 json.dump(r, f, indent=1)
             print(summary_line(r), flush=True)

@@ -72,30 +72,37 @@ def test_fluidisation_small_column():
 
 
 @pytest.mark.slow
-def test_fluidisation_curve_wide_bed():
+def test_fluidisation_curve_deep_bed():
     """The stepped fluidisation curve of the benchmark's default bed (the same computation as
-    ``python benchmarks/fluidisation.py`` for Beetstra): 3200 glass spheres of 0.5 mm in a
-    pseudo-2-D periodic bed of 16 x 20 x 1 gas cells of 1.5 mm (24 mm wide, bed about 9 mm
-    high), which bubbles instead of slugging.
+    ``python benchmarks/fluidisation.py`` for Beetstra): 6400 glass spheres of 0.5 mm in a
+    pseudo-2-D periodic bed of 16 x 40 x 1 gas cells of 1.5 mm (24 mm wide, bed about 18 mm =
+    12 cells high), which bubbles.
 
     * fixed bed, 0.2 to 0.85 U_mf: dp within FIXED_TOL of the closure's fixed-bed pressure drop
       at the particles' own porosities (``FB.closure_pressure_drop``);
     * U_mf (the fit of the fixed-bed points meeting W) within 10 % of
       ``drag.minimum_fluidisation_velocity`` at the porosity the particles see;
-    * plateau at 1.3, 1.7, 2.2 U_mf (0.8 s averages after 0.15 s): dp + floor load equal to W
-      within 1.5 % (momentum balance; measured 0.996-1.003), the floor load below 4 % of W
-      (measured 0.027-0.029), each dp within 3 % of W plus twice its standard error (the
-      issue's 3 % within the statistical error of a 0.8 s average), and the mean dp of the
-      three points within 4 % of W.  Measured dp/W = 0.969 +- 0.006, 0.974 +- 0.008,
-      0.969 +- 0.017 (block SEM), mean 0.971: the 3 % on dp alone is met at 1.7 U_mf and
-      missed by 0.1 % at 1.3 and 2.2 U_mf; the floor keeps 2.7-2.9 % of the weight (particles
-      raining back onto the distributor), see docs/coupling.md "The fluidisation plateau".
-      A rerun through pytest after the gas solver changed (another realisation of the chaotic
-      flow): 0.964 +- 0.005, 0.969 +- 0.007, 0.970 +- 0.011, mean 0.968 (floor 0.027-0.032),
-      U_mf -2.2 %, fixed bed 2.6-3.3 % below the closure; 407 s wall on one thread.
+    * plateau at 1.5, 2.0, 2.5 U_mf (0.8 s averages after 0.15 s; dp = pressure at the
+      distributor face minus the outlet pressure less the gas's own head): the mean dp of the
+      three points within 3 % of the buoyant bed weight per area W (the issue's bound), each
+      point within 3 % of W plus twice its block standard error, the floor (distributor plate)
+      load below 2.5 % of W, and dp + floor load = W within 1.5 % (momentum balance of the bed).
 
-    Run time: 1460 s on the loaded 2-core development machine (about a quarter of a core);
-    about 6 minutes of CPU on one numba thread."""
+    Why the deep bed: the distributor carries about 4 Pa on time average in a bubbling bed of
+    this width (particles falling back into the voids that bubbles leave at the distributor and
+    after eruptions; the gas force on the particles touching the floor is 0.95-1.18 of their
+    weight, so they are not under-dragged), which was 3 % of the 9 mm bed's weight (its plateau
+    0.964-0.974 W) and is about 1.3 % of this one's; docs/fluidisation/README.md.
+
+    Measured (python benchmarks/fluidisation.py, the same computation): W = 290.9 Pa; fixed bed
+    2.1-3.4 % below the closure; U_mf 0.1983 m/s against the closure's 0.1876 m/s at the rest
+    porosity 0.395 (+5.7 %; the soft contacts unload as the gas takes the weight, eps 0.401 at
+    0.85 U_mf, where the closure gives 0.1985 m/s); plateau dp/W = 0.987 +- 0.006,
+    0.987 +- 0.017, 0.988 +- 0.038 (mean 0.987), floor 0.014, 0.012, 0.016 W, dp + floor
+    0.999-1.003 W.
+
+    Run time: 618 s wall on one numba thread on the shared 2-core development machine (load
+    4-5); about twice the wide bed's CPU time (twice the particles and the cells)."""
     r = FB.run_closure("beetstra")
     W = r["weight_per_area"]
     for x in r["rows"]:
@@ -108,9 +115,9 @@ def test_fluidisation_curve_wide_bed():
         assert abs(x["dp"] / x["closure_dp"] - 1.0) < FIXED_TOL, x
     assert abs(r["umf"] / r["umf_closure"] - 1.0) < 0.10, (r["umf"], r["umf_closure"])
     plateau = [x for x in r["rows"] if x["U_over_umf"] > 1.2]
-    assert len(plateau) == 3
+    assert [round(x["U_over_umf"], 2) for x in plateau] == [1.5, 2.0, 2.5]
     for x in plateau:
         assert abs(x["dp"] / W - 1.0) < 0.03 + 2.0 * x["dp_sem"] / W, (x, W)
-        assert x["floor"] / W < 0.04, (x, W)
+        assert x["floor"] / W < 0.025, (x, W)
         assert abs((x["dp"] + x["floor"]) / W - 1.0) < 0.015, (x, W)
-    assert abs(np.mean([x["dp"] for x in plateau]) / W - 1.0) < 0.04
+    assert abs(np.mean([x["dp"] for x in plateau]) / W - 1.0) < 0.03
