@@ -102,7 +102,8 @@ def test_fluidisation_curve_deep_bed():
     0.999-1.003 W.
 
     Run time: 618 s wall on one numba thread on the shared 2-core development machine (load
-    4-5); about twice the wide bed's CPU time (twice the particles and the cells)."""
+    4-5), 592 s through pytest (identical numbers); about twice the wide bed's CPU time (twice
+    the particles and the cells)."""
     r = FB.run_closure("beetstra")
     W = r["weight_per_area"]
     for x in r["rows"]:
