@@ -88,6 +88,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cfddem._jit import kernel
 from cfddem.coupling import drag as _drag
 from cfddem.coupling.mapping import MappingPlan
 from cfddem.errors import CaseError
@@ -97,6 +98,116 @@ from cfddem.gas import (FreeSlip, GasSolver, Inlet, LidCrossWind, NoSlip, Period
 __all__ = ["CoupledGas", "CouplingStatus", "build_coupled_gas", "coupling_diagnostics", "column_gas"]
 
 _LOC = ("fcc", "cfc", "ccf")
+
+
+
+# ---------------------------------------------------------------------------- grid kernels
+@kernel(inline="always")
+def _face_grad(p, hw, c, i, j, k, f, lo, hi, dx):
+    """g_f = (p_I - p_{I-1})/h on face f of component c at the cross indices of cell (i, j, k)
+    (halo width hw; only index c is replaced by f), 0 outside the updated faces [lo, hi)."""
+    if f < lo or f >= hi:
+        return 0.0
+    if c == 0:
+        return (p[hw + f, hw + j, hw + k] - p[hw + f - 1, hw + j, hw + k]) / dx
+    if c == 1:
+        return (p[hw + i, hw + f, hw + k] - p[hw + i, hw + f - 1, hw + k]) / dx
+    return (p[hw + i, hw + j, hw + f] - p[hw + i, hw + j, hw + f - 1]) / dx
+
+
+@kernel
+def _pressure_fields_kernel(p, e, hw, spacing, flo, fhi, per, blo, bhi, G, Gb, solid):
+    """From the halo-filled pressure ``p`` and porosity ``e`` (halo width hw): for each component
+    c the centre field ``G[c]`` (step 5a: (g_i + g_{i+1})/2, face n = face 0 on a periodic
+    axis, the outer faces counted fully on a wall axis), the boundary half-cell field
+    ``Gb[c]`` (step 5b: g_1/2 in the first cell if ``blo[c]``, g_{n-1}/2 in the last if
+    ``bhi[c]``, else 0) and ``solid[c] = sum_f (1 - eps_f) g_f`` over all faces (eps_f the
+    arithmetic face mean of the halo-filled porosity).  The same operations, in the same
+    order, as the numpy code of :meth:`CoupledGas._centre_from_faces` (bit-identical G, Gb);
+    ``solid`` is summed in cell order (round-off differences to ``np.sum``)."""
+    nx = G.shape[1]
+    ny = G.shape[2]
+    nz = G.shape[3]
+    for c in range(3):
+        solid[c] = 0.0
+    for i in range(nx):
+        for j in range(ny):
+            for k in range(nz):
+                for c in range(3):
+                    a = i if c == 0 else (j if c == 1 else k)
+                    n = nx if c == 0 else (ny if c == 1 else nz)
+                    lo = flo[c]
+                    hi = fhi[c]
+                    dx = spacing[c]
+                    g0 = _face_grad(p, hw, c, i, j, k, a, lo, hi, dx)
+                    if per[c] == 1 and a + 1 == n:
+                        g1 = _face_grad(p, hw, c, i, j, k, 0, lo, hi, dx)
+                    else:
+                        g1 = _face_grad(p, hw, c, i, j, k, a + 1, lo, hi, dx)
+                    val = 0.5 * (g0 + g1)
+                    if per[c] == 0:
+                        if a == 0:
+                            val += 0.5 * g0
+                        if a == n - 1:
+                            val += 0.5 * g1
+                    G[c, i, j, k] = val
+                    b = 0.0
+                    if blo[c] == 1 and a == 0:
+                        b += 0.5 * _face_grad(p, hw, c, i, j, k, 1, lo, hi, dx)
+                    if bhi[c] == 1 and a == n - 1:
+                        b += 0.5 * _face_grad(p, hw, c, i, j, k, n - 1, lo, hi, dx)
+                    Gb[c, i, j, k] = b
+                    # solid part over the faces: the low face of every cell, and face n of the last
+                    ii = hw + i
+                    jj = hw + j
+                    kk = hw + k
+                    if c == 0:
+                        em = e[ii - 1, jj, kk]
+                    elif c == 1:
+                        em = e[ii, jj - 1, kk]
+                    else:
+                        em = e[ii, jj, kk - 1]
+                    ef = 0.5 * (em + e[ii, jj, kk])
+                    solid[c] += (1.0 - ef) * g0
+                    if a == n - 1:
+                        if c == 0:
+                            ep = e[ii + 1, jj, kk]
+                        elif c == 1:
+                            ep = e[ii, jj + 1, kk]
+                        else:
+                            ep = e[ii, jj, kk + 1]
+                        ef = 0.5 * (e[ii, jj, kk] + ep)
+                        solid[c] += (1.0 - ef) * _face_grad(p, hw, c, i, j, k, n, lo, hi, dx)
+    return 0
+
+
+
+@kernel
+def _drag_grid_kernel(dk, dkv, vc, K, Up):
+    """Flat face arrays: K = dk/vc, Up = dkv/dk where dk > 0, else 0 (step 3)."""
+    for i in range(dk.shape[0]):
+        a = dk[i]
+        K[i] = a / vc
+        Up[i] = dkv[i] / a if a > 0.0 else 0.0
+    return 0
+
+
+@kernel
+def _gas_drag_sum(K, u, Up, c, lo, hi):
+    """sum over the faces lo <= index_c < hi of K (u - Up) (the gas side of the drag exchange,
+    per unit dt_g V_cell), summed in index order."""
+    acc = 0.0
+    for i in range(K.shape[0]):
+        if c == 0 and (i < lo or i >= hi):
+            continue
+        for j in range(K.shape[1]):
+            if c == 1 and (j < lo or j >= hi):
+                continue
+            for k in range(K.shape[2]):
+                if c == 2 and (k < lo or k >= hi):
+                    continue
+                acc += K[i, j, k] * (u[i, j, k] - Up[i, j, k])
+    return acc
 
 
 @dataclass
@@ -206,6 +317,14 @@ class CoupledGas:
             self._bside.append((not per and lo == 1, not per and hi == grid.shape[c]))
         self._has_boundary = [a or b for a, b in self._bside]
         self._g = tuple(float(v) for v in gravity)
+        # parameters of _pressure_fields_kernel: spacing, updated face range, periodic, boundary sides
+        fr = self.gas.bc.face_range
+        self._gparams = (np.array([float(h) for h in grid.spacing]),
+                         np.array([int(fr[c][0]) for c in range(3)], np.int64),
+                         np.array([int(fr[c][1]) for c in range(3)], np.int64),
+                         np.array([1 if self.gas.bc.periodic[c] else 0 for c in range(3)], np.int64),
+                         np.array([1 if self._bside[c][0] else 0 for c in range(3)], np.int64),
+                         np.array([1 if self._bside[c][1] else 0 for c in range(3)], np.int64))
         self._upd = []
         for c in range(3):
             lo, hi = self.gas.bc.face_range[c]
@@ -295,8 +414,11 @@ class CoupledGas:
             else:
                 Keff = K
             DK, DKv = plan.deposit_drag(Keff, vel)
-            drag_K = tuple(a / vc for a in DK)
-            drag_Up = tuple(np.divide(b, a, out=np.zeros_like(a), where=a > 0) for a, b in zip(DK, DKv))
+            drag_K = tuple(np.empty_like(a) for a in DK)
+            drag_Up = tuple(np.empty_like(a) for a in DK)
+            for c in range(3):  # K = D(K_eff)/V_cell, Up = D(K_eff v)/D(K_eff) (0 where D(K_eff) = 0)
+                _drag_grid_kernel(DK[c].reshape(-1), DKv[c].reshape(-1), vc, drag_K[c].reshape(-1),
+                                  drag_Up[c].reshape(-1))
         else:
             drag_K = drag_Up = None
         # boundary half-cells (module docstring, step 5b), explicit at p^n
@@ -325,10 +447,7 @@ class CoupledGas:
         self.n_couplings += 1
         # --- 4.-6. forces on the particles -------------------------------------------------
         if n:
-            g_new = self._face_gradients()
-            G = self._centre_from_faces(g_new)
-            Gb = self._centre_from_faces(g_new, boundary=True)
-            Gb = [gb if self._has_boundary[c] else None for c, gb in enumerate(Gb)]
+            G, Gb, solid = self._pressure_fields()
             # writes system.ext_force = fd + fp + fb directly (a contiguous view of its store)
             f = plan.apply_forces(gas.u.interior, gas.v.interior, gas.w.interior, vel, Keff, vol, G, Gb,
                                   sys_.ext_force)
@@ -339,13 +458,12 @@ class CoupledGas:
             gas_drag = np.empty(3)
             for c in range(3):
                 lo, hi = gas.bc.face_range[c]
-                s = _sl(c, slice(lo, hi))
-                u_c = getattr(gas, "uvw"[c]).interior
-                gas_drag[c] = dtg * float(np.sum(drag_K[c][s] * (u_c[s] - drag_Up[c][s]))) * vc
+                u_c = np.ascontiguousarray(getattr(gas, "uvw"[c]).interior)
+                gas_drag[c] = dtg * _gas_drag_sum(drag_K[c], u_c, drag_Up[c], c, lo, hi) * vc
             self.last_exchange = {"particle_drag_impulse": dtg * f["fd"],
                                   "gas_drag_impulse": -gas_drag,
                                   "particle_pressure_impulse": dtg * f["fp"],
-                                  "gas_solid_pressure_impulse": self._solid_pressure_impulse(dtg, g_new),
+                                  "gas_solid_pressure_impulse": dtg * vc * solid,
                                   "particle_boundary_pressure_impulse": dtg * f["fb"]}
         else:
             self._last["drag_power"] = 0.0
@@ -353,7 +471,7 @@ class CoupledGas:
         if gas.time > self.average_start + 1e-12 * dtg:
             self._avg_sum += gas.cell_centred_velocity() * dtg
             self._avg_time += dtg
-        if gas.max_stable_dt() < dtg and self.n_couplings % 1000 == 1:
+        if self.n_couplings % 1000 == 1 and gas.max_stable_dt() < dtg:  # (max_stable_dt costs 0.2 ms)
             self.log.warning("gas time step dt_g = %.3g s exceeds the gas's stable step %.3g s (CFL %.3g)",
                              dtg, gas.max_stable_dt(), info.cfl)
         return None
@@ -443,14 +561,17 @@ class CoupledGas:
         cells keep the gas solver's own discretisation.  None if the box has no such side."""
         if not any(self._has_boundary):
             return None
-        grads = self._face_gradients()
         h = self.grid.halo
         e = self.gas.eps.data
+        p = self.gas.p.data
         core = [slice(h, h + n) for n in self.grid.shape]
         out = []
-        for c, g in enumerate(grads):
-            S = np.zeros_like(g)
+        for c in range(3):
             n = self.grid.shape[c]
+            shp = list(self.grid.shape)
+            shp[c] += 1
+            S = np.zeros(shp)
+            lo, hi = self.gas.bc.face_range[c]
             for lower, on in zip((True, False), self._bside[c]):
                 if not on:
                     continue
@@ -459,10 +580,37 @@ class CoupledGas:
                 sl = list(core)
                 sl[c] = slice(h + cell, h + cell + 1)
                 eb = e[tuple(sl)]
+                # the face gradient of _face_gradients on face f only
+                a = list(core)
+                b = list(core)
+                a[c] = slice(h + f, h + f + 1)
+                b[c] = slice(h + f - 1, h + f)
+                g = (p[tuple(a)] - p[tuple(b)]) / self.grid.spacing[c] if lo <= f < hi else np.zeros_like(eb)
                 blend = np.minimum(1.0, (1.0 - eb) / self.HALF_CELL_SOLID)
-                S[_sl(c, slice(f, f + 1))] += 0.5 * eb * blend * (-g[_sl(c, slice(f, f + 1))] + self.rho * self._g[c])
+                S[_sl(c, slice(f, f + 1))] += 0.5 * eb * blend * (-g + self.rho * self._g[c])
             out.append(S)
         return tuple(out)
+
+    def _pressure_fields(self):
+        """``(G, Gb, solid)`` at the current pressure, one compiled pass over the cells
+        (:func:`_pressure_fields_kernel`): G the three centre fields of step 5a, Gb those of
+        step 5b (None for a component without a boundary side), solid (3,) the solid part
+        ``sum_f (1 - eps_f) g_f`` of the gas's pressure exchange per component (times
+        dt_g V_cell: :meth:`_solid_pressure_impulse`).  G and Gb live in work arrays that the
+        next call overwrites."""
+        gas, grid = self.gas, self.grid
+        shape = (3,) + tuple(grid.shape)
+        G = self._ws.get("_G")
+        if G is None or G.shape != shape:
+            G = self._ws["_G"] = np.empty(shape)
+            self._ws["_Gb"] = np.empty(shape)
+        Gb = self._ws["_Gb"]
+        solid = np.empty(3)
+        p = np.ascontiguousarray(gas.p.data, dtype=np.float64)
+        e = np.ascontiguousarray(gas.eps.data, dtype=np.float64)
+        _pressure_fields_kernel(p, e, int(grid.halo), self._gparams[0], self._gparams[1], self._gparams[2],
+                                self._gparams[3], self._gparams[4], self._gparams[5], G, Gb, solid)
+        return ([G[0], G[1], G[2]], [Gb[c] if self._has_boundary[c] else None for c in range(3)], solid)
 
     def _centre_from_faces(self, grads, boundary=False):
         """G_i = (g_i + g_{i+1})/2 (module docstring, step 5a); ``boundary``: instead the

@@ -185,3 +185,88 @@ def test_particle_free_box_is_the_plain_gas_solver():
     for a, b in ((cg.gas.u.data, ref.u.data), (cg.gas.v.data, ref.v.data), (cg.gas.w.data, ref.w.data),
                  (cg.gas.p.data, ref.p.data)):
         assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("kind", ["walls_inlet_outlet", "mixed_periodic", "one_cell_wall_axis"])
+def test_compiled_pressure_fields_equal_numpy_reference(kind):
+    """_pressure_fields (one compiled pass) gives the same G and Gb, bit for bit, as the numpy
+    face gradients and _centre_from_faces, and the solid pressure impulse of
+    _solid_pressure_impulse to round-off; for walls + inlet + outlet (boundary half-cells on
+    two axes), a mixed periodic box, and a one-cell wall axis."""
+    from cfddem.gas import Inlet, PressureOutlet
+
+    sys_ = ParticleSystem(pp=LinearContact(k_n=100.0, e_n=0.9, e_t=0.5, mu=0.3), walls=[], dt=1e-5)
+    if kind == "walls_inlet_outlet":
+        bcs = {"x-": NoSlip(), "x+": NoSlip(), "y-": NoSlip(), "y+": NoSlip(), "z-": Inlet(speed=0.3),
+               "z+": PressureOutlet(p=0.0)}
+        cells = (5, 4, 7)
+    elif kind == "mixed_periodic":
+        bcs = {"x-": Periodic(), "x+": Periodic(), "y-": Inlet(speed=0.2), "y+": PressureOutlet(p=0.0),
+               "z-": Periodic(), "z+": Periodic()}
+        cells = (4, 6, 3)
+    else:
+        bcs = {"x-": NoSlip(), "x+": NoSlip(), "y-": NoSlip(), "y+": NoSlip(), "z-": Periodic(), "z+": Periodic()}
+        cells = (1, 5, 4)
+    grid = StaggeredGrid(cells, (0.05, 0.04, 0.06))
+    cg = CoupledGas(sys_, grid, bcs, rho=1.2, mu=1.8e-5)
+    rng = np.random.default_rng(5)
+    pr = rng.normal(size=cells)
+    cg.gas.p.interior[...] = pr
+    cg.gas.fill_halos()
+    cg.gas.set_porosity(rng.uniform(0.4, 1.0, cells))
+    grads = cg._face_gradients()
+    G_ref = cg._centre_from_faces(grads)
+    Gb_ref = cg._centre_from_faces(grads, boundary=True)
+    solid_ref = cg._solid_pressure_impulse(1.0, grads) / grid.cell_volume
+    G, Gb, solid = cg._pressure_fields()
+    assert any(np.any(g != 0) for g in G)
+    for c in range(3):
+        assert np.array_equal(G[c], G_ref[c])
+        if cg._has_boundary[c]:
+            assert np.array_equal(Gb[c], Gb_ref[c])
+        else:
+            assert Gb[c] is None and not np.any(Gb_ref[c])
+    assert any(cg._has_boundary)
+    scale = max(float(np.sum(np.abs(g))) for g in grads)
+    np.testing.assert_allclose(solid, solid_ref, rtol=0, atol=1e-13 * scale)
+    assert np.any(np.abs(solid_ref) > 1e-3 * scale)
+
+
+def test_coupling_step_identical_for_one_and_two_threads():
+    """A whole coupling step (porosity, drag, gas step, forces, exchange sums) on a box with
+    walls, an inlet and an outlet: bit-identical ext_force, gas fields and exchange records
+    for 1 and 2 numba threads."""
+    import numba
+
+    from cfddem.gas import Inlet, PressureOutlet
+
+    def run(nt):
+        sys_ = ParticleSystem(pp=LinearContact(k_n=100.0, e_n=0.9, e_t=0.5, mu=0.3), walls=[], dt=1e-5)
+        rng = np.random.default_rng(3)
+        sys_.add_particles(rng.uniform(0.001, 0.019, (400, 3)), rng.normal(0, 0.1, (400, 3)), 0.4e-3, 2500.0)
+        bcs = {"x-": NoSlip(), "x+": NoSlip(), "y-": NoSlip(), "y+": NoSlip(), "z-": Inlet(speed=0.3),
+               "z+": PressureOutlet(p=0.0)}
+        cg = CoupledGas(sys_, StaggeredGrid((4, 4, 5), (L, L, L)), bcs, rho=1.2, mu=1.8e-5, coupling_interval=5,
+                        gravity=(0.0, -9.81, 0.0))
+        prev = numba.get_num_threads()
+        numba.set_num_threads(nt)
+        try:
+            assert cg.couple() is None
+            assert cg.couple() is None
+        finally:
+            numba.set_num_threads(prev)
+        return (np.array(sys_.ext_force), np.array(cg.gas.u.data), np.array(cg.gas.p.data),
+                {k: np.array(v) for k, v in cg.last_exchange.items()}, dict(cg._last))
+
+    a = run(1)
+    b = run(min(2, __import__("numba").config.NUMBA_NUM_THREADS))
+    assert np.any(a[0] != 0.0)
+    for x, y in zip(a[:3], b[:3]):
+        assert np.array_equal(x, y)
+    for k in a[3]:
+        assert np.array_equal(a[3][k], b[3][k])
+    assert a[4] == b[4]
+    # exchange records: drag and pressure (5a) balance to round-off
+    ex = a[3]
+    imp = np.abs(ex["particle_drag_impulse"]).max()
+    np.testing.assert_allclose(ex["particle_drag_impulse"], -ex["gas_drag_impulse"], rtol=0, atol=1e-12 * imp)

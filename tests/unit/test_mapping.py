@@ -340,6 +340,13 @@ def test_fused_coupling_kernels_match_single_field_methods_and_threads(periodic)
             e_a, re = (x.copy() for x in p.interpolate_slip(eps, *u, vel, d, rho, mu))
             dk, dkv = (tuple(a.copy() for a in t) for t in p.deposit_drag(keff, vel))
             f = {k: v.copy() for k, v in p.particle_forces(*u, vel, keff, vol, G, Gb).items()}
+            out = np.full((n, 3), np.nan)
+            sums = p.apply_forces(*u, vel, keff, vol, G, Gb, out)
+            f["applied"] = out
+            for key in ("fd", "fp", "fb"):
+                f["sum_" + key] = sums[key]
+            f["sum_power"] = np.array(sums["power"])
+            f["max_magnitude"] = np.array(sums["max_magnitude"])
             runs.append((e_a, re, dk, dkv, f))
     finally:
         numba.set_num_threads(prev)
@@ -352,6 +359,14 @@ def test_fused_coupling_kernels_match_single_field_methods_and_threads(periodic)
     assert np.array_equal(f["total"], fd_ref + fp_ref + fb_ref)
     np.testing.assert_allclose(f["power"].sum(), np.sum(fd_ref * (ua - vel)), rtol=1e-12)
     np.testing.assert_allclose(f["magnitude"], np.linalg.norm(fd_ref, axis=1), rtol=1e-14)
+    # apply_forces: the same total, written into the caller's array, and block sums
+    assert np.array_equal(f["applied"], f["total"])
+    for key, ref in (("fd", fd_ref), ("fp", fp_ref), ("fb", fb_ref)):
+        np.testing.assert_allclose(f["sum_" + key], ref.sum(axis=0), rtol=0, atol=1e-13 * np.abs(ref).sum())
+    np.testing.assert_allclose(f["sum_power"], np.sum(fd_ref * (ua - vel)), rtol=1e-12)
+    assert f["max_magnitude"] == pytest.approx(np.linalg.norm(fd_ref, axis=1).max(), rel=1e-14)
+    with pytest.raises(CaseError):
+        p.apply_forces(*u, vel, keff, vol, G, Gb, np.zeros((n, 3))[:, ::1].T.copy().T)
     r1, r2 = runs
     assert np.array_equal(r1[0], r2[0]) and np.array_equal(r1[1], r2[1])
     for a, b in zip(r1[2] + r1[3], r2[2] + r2[3]):
