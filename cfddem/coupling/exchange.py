@@ -183,12 +183,13 @@ def _pressure_fields_kernel(p, e, hw, spacing, flo, fhi, per, blo, bhi, G, Gb, s
 
 
 @kernel
-def _drag_grid_kernel(dk, dkv, vc, K, Up):
-    """Flat face arrays: K = dk/vc, Up = dkv/dk where dk > 0, else 0 (step 3)."""
-    for i in range(dk.shape[0]):
-        a = dk[i]
+def _drag_grid_kernel(pair, vc, K, Up):
+    """Flat face arrays, ``pair[i] = (D(K_eff), D(K_eff v))``: K = D(K_eff)/vc,
+    Up = D(K_eff v)/D(K_eff) where D(K_eff) > 0, else 0 (step 3)."""
+    for i in range(pair.shape[0]):
+        a = pair[i, 0]
         K[i] = a / vc
-        Up[i] = dkv[i] / a if a > 0.0 else 0.0
+        Up[i] = pair[i, 1] / a if a > 0.0 else 0.0
     return 0
 
 
@@ -413,12 +414,11 @@ class CoupledGas:
                 Keff = -mass * np.expm1(-dtg * K / mass) / dtg
             else:
                 Keff = K
-            DK, DKv = plan.deposit_drag(Keff, vel)
-            drag_K = tuple(np.empty_like(a) for a in DK)
-            drag_Up = tuple(np.empty_like(a) for a in DK)
+            pairs = plan.deposit_drag_pairs(Keff, vel)  # (D(K_eff), D(K_eff v_c)) per face grid
+            drag_K = tuple(np.empty(a.shape[:3]) for a in pairs)
+            drag_Up = tuple(np.empty(a.shape[:3]) for a in pairs)
             for c in range(3):  # K = D(K_eff)/V_cell, Up = D(K_eff v)/D(K_eff) (0 where D(K_eff) = 0)
-                _drag_grid_kernel(DK[c].reshape(-1), DKv[c].reshape(-1), vc, drag_K[c].reshape(-1),
-                                  drag_Up[c].reshape(-1))
+                _drag_grid_kernel(pairs[c].reshape(-1, 2), vc, drag_K[c].reshape(-1), drag_Up[c].reshape(-1))
         else:
             drag_K = drag_Up = None
         # boundary half-cells (module docstring, step 5b), explicit at p^n
