@@ -118,16 +118,16 @@ def _face_grad(p, hw, c, i, j, k, f, lo, hi, dx):
 @kernel
 def _pressure_fields_kernel(p, e, hw, spacing, flo, fhi, per, blo, bhi, G, Gb, solid):
     """From the halo-filled pressure ``p`` and porosity ``e`` (halo width hw): for each component
-    c the centre field ``G[c]`` (step 5a: (g_i + g_{i+1})/2, face n = face 0 on a periodic
+    c the centre field ``G[..., c]`` (step 5a: (g_i + g_{i+1})/2, face n = face 0 on a periodic
     axis, the outer faces counted fully on a wall axis), the boundary half-cell field
-    ``Gb[c]`` (step 5b: g_1/2 in the first cell if ``blo[c]``, g_{n-1}/2 in the last if
+    ``Gb[..., c]`` (step 5b: g_1/2 in the first cell if ``blo[c]``, g_{n-1}/2 in the last if
     ``bhi[c]``, else 0) and ``solid[c] = sum_f (1 - eps_f) g_f`` over all faces (eps_f the
     arithmetic face mean of the halo-filled porosity).  The same operations, in the same
     order, as the numpy code of :meth:`CoupledGas._centre_from_faces` (bit-identical G, Gb);
     ``solid`` is summed in cell order (round-off differences to ``np.sum``)."""
-    nx = G.shape[1]
-    ny = G.shape[2]
-    nz = G.shape[3]
+    nx = G.shape[0]
+    ny = G.shape[1]
+    nz = G.shape[2]
     for c in range(3):
         solid[c] = 0.0
     for i in range(nx):
@@ -150,13 +150,13 @@ def _pressure_fields_kernel(p, e, hw, spacing, flo, fhi, per, blo, bhi, G, Gb, s
                             val += 0.5 * g0
                         if a == n - 1:
                             val += 0.5 * g1
-                    G[c, i, j, k] = val
+                    G[i, j, k, c] = val
                     b = 0.0
                     if blo[c] == 1 and a == 0:
                         b += 0.5 * _face_grad(p, hw, c, i, j, k, 1, lo, hi, dx)
                     if bhi[c] == 1 and a == n - 1:
                         b += 0.5 * _face_grad(p, hw, c, i, j, k, n - 1, lo, hi, dx)
-                    Gb[c, i, j, k] = b
+                    Gb[i, j, k, c] = b
                     # solid part over the faces: the low face of every cell, and face n of the last
                     ii = hw + i
                     jj = hw + j
@@ -209,6 +209,24 @@ def _gas_drag_sum(K, u, Up, c, lo, hi):
                     continue
                 acc += K[i, j, k] * (u[i, j, k] - Up[i, j, k])
     return acc
+
+
+
+@kernel
+def _average_kernel(u, v, w, hw, dt, acc):
+    """acc[..., c] += dt * (cell-centred velocity component c), the centre value being the
+    mean of the two faces around the cell (``GasSolver.cell_centred_velocity``, same
+    operations)."""
+    for i in range(acc.shape[0]):
+        for j in range(acc.shape[1]):
+            for k in range(acc.shape[2]):
+                a = hw + i
+                b = hw + j
+                c = hw + k
+                acc[i, j, k, 0] += 0.5 * (u[a, b, c] + u[a + 1, b, c]) * dt
+                acc[i, j, k, 1] += 0.5 * (v[a, b, c] + v[a, b + 1, c]) * dt
+                acc[i, j, k, 2] += 0.5 * (w[a, b, c] + w[a, b, c + 1]) * dt
+    return 0
 
 
 @dataclass
@@ -450,7 +468,7 @@ class CoupledGas:
             G, Gb, solid = self._pressure_fields()
             # writes system.ext_force = fd + fp + fb directly (a contiguous view of its store)
             f = plan.apply_forces(gas.u.interior, gas.v.interior, gas.w.interior, vel, Keff, vol, G, Gb,
-                                  sys_.ext_force)
+                                  sys_.ext_force, boundary_used=self._has_boundary)
             self._last["drag_power"] = f["power"]
             self._last["max_drag_force"] = f["max_magnitude"]
             # both sides of the exchange (momentum received), for conservation checks: the
@@ -469,7 +487,7 @@ class CoupledGas:
             self._last["drag_power"] = 0.0
             self._last["max_drag_force"] = 0.0
         if gas.time > self.average_start + 1e-12 * dtg:
-            self._avg_sum += gas.cell_centred_velocity() * dtg
+            _average_kernel(gas.u.data, gas.v.data, gas.w.data, int(grid.halo), dtg, self._avg_sum)
             self._avg_time += dtg
         if self.n_couplings % 1000 == 1 and gas.max_stable_dt() < dtg:  # (max_stable_dt costs 0.2 ms)
             self.log.warning("gas time step dt_g = %.3g s exceeds the gas's stable step %.3g s (CFL %.3g)",
@@ -593,13 +611,13 @@ class CoupledGas:
 
     def _pressure_fields(self):
         """``(G, Gb, solid)`` at the current pressure, one compiled pass over the cells
-        (:func:`_pressure_fields_kernel`): G the three centre fields of step 5a, Gb those of
-        step 5b (None for a component without a boundary side), solid (3,) the solid part
+        (:func:`_pressure_fields_kernel`): G (nx, ny, nz, 3) the three centre fields of step 5a,
+        Gb those of step 5b (zero for a component without a boundary side), solid (3,) the solid part
         ``sum_f (1 - eps_f) g_f`` of the gas's pressure exchange per component (times
         dt_g V_cell: :meth:`_solid_pressure_impulse`).  G and Gb live in work arrays that the
         next call overwrites."""
         gas, grid = self.gas, self.grid
-        shape = (3,) + tuple(grid.shape)
+        shape = tuple(grid.shape) + (3,)
         G = self._ws.get("_G")
         if G is None or G.shape != shape:
             G = self._ws["_G"] = np.empty(shape)
@@ -610,7 +628,7 @@ class CoupledGas:
         e = np.ascontiguousarray(gas.eps.data, dtype=np.float64)
         _pressure_fields_kernel(p, e, int(grid.halo), self._gparams[0], self._gparams[1], self._gparams[2],
                                 self._gparams[3], self._gparams[4], self._gparams[5], G, Gb, solid)
-        return ([G[0], G[1], G[2]], [Gb[c] if self._has_boundary[c] else None for c in range(3)], solid)
+        return G, Gb, solid
 
     def _centre_from_faces(self, grads, boundary=False):
         """G_i = (g_i + g_{i+1})/2 (module docstring, step 5a); ``boundary``: instead the

@@ -474,19 +474,20 @@ def _deposit_drag_kernel(pos, fpar, ipar, live, keff, vel, ox, oy, oz):
 
 
 @parallel_kernel
-def _forces_kernel(pos, fpar, ipar, live, u, v, w, gx, gy, gz, bx, by, bz, has_b, vel, keff, vol, store,
+def _forces_kernel(pos, fpar, ipar, live, u, v, w, G, B, has_b, vel, keff, vol, store,
                    fd, fp, fb, ext, power, fmag, chunk, part):
     """Per particle: drag fd = K (u_a - v_a) with u_a from the face grids, pressure forces
-    fp_c = -V I_ccc(G_c), fb_c = -V I_ccc(Gb_c) (0 where has_b[c] is 0; Gb_c is zero except
-    in the first and last cell layers along axis c, and only particles touching those layers
-    read it), ext = fd + fp + fb, power = fd . (u_a - v_a), fmag = |fd|; fd, fp, fb, power,
+    fp_c = -V I_ccc(G[..., c]), fb_c = -V I_ccc(B[..., c]) (0 where has_b[c] is 0; B[..., c] is
+    zero except in the first and last cell layers along axis c, and only particles touching
+    those layers read it; G and B (nx, ny, nz, 3), the components of a node in one cache
+    line), ext = fd + fp + fb, power = fd . (u_a - v_a), fmag = |fd|; fd, fp, fb, power,
     fmag are stored only if ``store`` is 1.  Sums: ``part[b]`` = (sum fd (3), sum fp (3),
     sum fb (3), sum power, max fmag) over the particles of block b = [b chunk, (b+1) chunk),
     each block summed serially in index order; the prange runs over blocks (whose size does
     not depend on the thread count), so the sums are the same for any thread count."""
-    nb0 = gx.shape[0] - 1
-    nb1 = gx.shape[1] - 1
-    nb2 = gx.shape[2] - 1
+    nb0 = G.shape[0] - 1
+    nb1 = G.shape[1] - 1
+    nb2 = G.shape[2] - 1
     n = pos.shape[0]
     nblk = part.shape[0]
     for b in prange(nblk):
@@ -516,15 +517,15 @@ def _forces_kernel(pos, fpar, ipar, live, u, v, w, gx, gy, gz, bx, by, bz, has_b
                     for cz in range(2):
                         iz = k0 if cz == 0 else k1
                         wc = wxy * (wz0 if cz == 0 else wz1)
-                        s0 += wc * gx[ix, iy, iz]
-                        s1 += wc * gy[ix, iy, iz]
-                        s2 += wc * gz[ix, iy, iz]
+                        s0 += wc * G[ix, iy, iz, 0]
+                        s1 += wc * G[ix, iy, iz, 1]
+                        s2 += wc * G[ix, iy, iz, 2]
                         if rb0:
-                            t0 += wc * bx[ix, iy, iz]
+                            t0 += wc * B[ix, iy, iz, 0]
                         if rb1:
-                            t1 += wc * by[ix, iy, iz]
+                            t1 += wc * B[ix, iy, iz, 1]
                         if rb2:
-                            t2 += wc * bz[ix, iy, iz]
+                            t2 += wc * B[ix, iy, iz, 2]
             k = keff[p]
             mv = -vol[p]
             d0 = ua - vel[p, 0]
@@ -830,24 +831,33 @@ class MappingPlan:
             _deposit_drag_kernel(self.pos, fpar, ipar, live, k, vel, *pairs)
         return pairs
 
-    def _forces(self, u, v, w, vel, keff, volume, centre, boundary, out, store):
-        spec = self.spec
+    def _stacked(self, fields, key):
+        """Three centre fields as one (nx, ny, nz, 3) array: a stacked array passes through, a
+        sequence is copied into a work array (None entries as zeros)."""
+        shape = tuple(self.spec.shape) + (3,)
+        if isinstance(fields, np.ndarray) and fields.ndim == 4:
+            return _array(fields, shape, "stacked centre fields")
+        if len(fields) != 3:
+            raise CaseError("coupling.field", f"need three centre fields, got {len(fields)}")
+        out = self._buf(key, shape)
+        for c, g in enumerate(fields):
+            out[..., c] = 0.0 if g is None else _array(g, self.spec.shape, "centre field")
+        return out
+
+    def _forces(self, u, v, w, vel, keff, volume, centre, boundary, out, store, boundary_used=None):
         _, fu, fv, fw = self._fields(None, u, v, w)
         vel = self._vel(vel)
         k = self._per_particle(keff, "drag coefficient")
         vol = self._per_particle(volume, "volume")
-        G = [_array(g, spec.shape, "centre field") for g in centre]
-        boundary = boundary if boundary is not None else (None, None, None)
-        has_b = np.array([0 if b is None else 1 for b in boundary], np.int64)
-        zero = None
-        B = []
-        for b in boundary:
-            if b is None:
-                if zero is None:
-                    zero = self._buf("zero_centre", spec.shape, zero=True)
-                B.append(zero)
-            else:
-                B.append(_array(b, spec.shape, "centre field"))
+        G = self._stacked(centre, "G3")
+        if boundary is None:
+            boundary = (None, None, None)
+        if isinstance(boundary, np.ndarray) and boundary.ndim == 4:
+            used = (True, True, True) if boundary_used is None else boundary_used
+        else:
+            used = [b is not None for b in boundary]
+        has_b = np.array([1 if b else 0 for b in used], np.int64)
+        B = self._stacked(boundary, "B3")
         n = self.n
         if store:
             res = {key: self._buf(key, (n, 3)) for key in ("fd", "fp", "fb")}
@@ -860,7 +870,7 @@ class MappingPlan:
         part = self._buf("force_sums", (nblk, 11))
         if n:
             fpar, ipar, live = self._params()
-            _forces_kernel(self.pos, fpar, ipar, live, fu, fv, fw, *G, *B, has_b, vel, k, vol, 1 if store else 0,
+            _forces_kernel(self.pos, fpar, ipar, live, fu, fv, fw, G, B, has_b, vel, k, vol, 1 if store else 0,
                            res["fd"], res["fp"], res["fb"], out, res["power"], res["magnitude"], _FORCE_BLOCK, part)
         return res, part
 
@@ -878,17 +888,19 @@ class MappingPlan:
         res["total"] = total
         return res
 
-    def apply_forces(self, u, v, w, vel, keff, volume, centre, boundary, out) -> dict:
+    def apply_forces(self, u, v, w, vel, keff, volume, centre, boundary, out, boundary_used=None) -> dict:
         """:meth:`particle_forces` for the coupling step: writes only ``total`` into ``out``
         (a C-contiguous float64 (n, 3) array, e.g. ``system.ext_force``) and returns the sums
         ``fd, fp, fb`` ((3,) each, sum over the particles), ``power`` (sum of fd . (u_a - v_a))
         and ``max_magnitude`` (max |fd|).  The sums run serially over fixed blocks of
         particles and then over the blocks, so they are the same for any thread count (they
-        differ from a plain sum in round-off only)."""
+        differ from a plain sum in round-off only).  ``centre`` and ``boundary`` may also be
+        stacked (nx, ny, nz, 3) arrays (no copy); ``boundary_used`` then gives the components
+        of ``boundary`` that are used (default all)."""
         if (not isinstance(out, np.ndarray) or out.shape != (self.n, 3) or out.dtype != np.float64
                 or not out.flags.c_contiguous or not out.flags.writeable):
             raise CaseError("coupling.values", f"out must be a writable C-contiguous float64 ({self.n}, 3) array")
-        _, part = self._forces(u, v, w, vel, keff, volume, centre, boundary, out, False)
+        _, part = self._forces(u, v, w, vel, keff, volume, centre, boundary, out, False, boundary_used)
         tot = part[:, :10].sum(axis=0)  # numpy, in one process: thread-independent
         return {"fd": tot[0:3].copy(), "fp": tot[3:6].copy(), "fb": tot[6:9].copy(), "power": float(tot[9]),
                 "max_magnitude": float(part[:, 10].max()) if part.shape[0] else 0.0}
