@@ -53,12 +53,14 @@ N threads; 30,000 particles x 8 corners cost well under a millisecond.  The weig
 particle and axis) are computed in parallel, each particle writing only its own slot, and
 the interpolations are parallel over particles for the same reason.
 
-Fused kernels for the coupling step (:class:`cfddem.coupling.exchange.CoupledGas`) use the
-plan's weights of all four locations, one pass each: :meth:`MappingPlan.interpolate_slip`
-(eps, the three face velocities, slip and Re per particle), :meth:`MappingPlan.deposit_drag`
-(K and K v_c on each face grid) and :meth:`MappingPlan.particle_forces` (drag from the new
-face velocities plus the pressure forces from six centre fields).  They evaluate the same
-weights and formulas as the single-field methods.
+Fused kernels for the coupling step (:class:`cfddem.coupling.exchange.CoupledGas`) evaluate
+the weights of all four locations inline from the positions (the same :func:`_axis_weights`
+with the same arguments, so the same numbers; nothing stored), one pass each:
+:meth:`MappingPlan.porosity` (serial deposit and the outside count),
+:meth:`MappingPlan.interpolate_slip` (eps, the three face velocities, slip and Re per
+particle), :meth:`MappingPlan.deposit_drag_pairs` (K and K v_c on each face grid, serial) and
+:meth:`MappingPlan.apply_forces` (drag from the new face velocities plus the pressure forces,
+written into the caller's array, with thread-independent block sums).
 """
 
 from __future__ import annotations
