@@ -19,7 +19,7 @@ def test_chute_runs_coupled(root, tmp_path, cells):
     of it in the AMG coarse solve of the gas package), so the default tier uses 8 x 5 x 50."""
     case = load_case(root / "cases" / "chute_16rpm",
                      overrides=["gas.enabled=true", "time.end_time=0.005", "measurements.start_time=0",
-                                f"gas.cells=[{cells[0]}, {cells[1]}, {cells[2]}]"])
+                                "time.dt=1e-5", f"gas.cells=[{cells[0]}, {cells[1]}, {cells[2]}]"])
     sim = Simulation(case, tmp_path / "out", echo=False, progress=False, threads=1)
     summary = sim.run()
     assert summary.status == "done" and abs(summary.time - 0.005) < 1e-9
@@ -79,7 +79,7 @@ def test_chute_resume_bit_identical(root, tmp_path):
     """Stop mid coupling interval (step 135, phase 5 of 10), resume from the checkpoint: the
     gas fields, the pending particle forces and the particles match the uninterrupted run."""
     ov = ["gas.enabled=true", "time.end_time=0.002", "measurements.start_time=0", "gas.cells=[8, 5, 50]",
-          "gas.coupling_interval=10"]
+          "gas.coupling_interval=10", "time.dt=1e-5"]
     path = root / "cases" / "chute_16rpm"
     ref = Simulation(load_case(path, overrides=ov), tmp_path / "ref", echo=False, progress=False, threads=1)
     assert ref.run().status == "done"
