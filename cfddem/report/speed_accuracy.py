@@ -17,6 +17,10 @@ those of the reference run (the most accurate one: by default the variant with t
   velocity.  It resolves the gas grid and the coupling interval, whose effect on the
   particles may stay below the scatter of the particle measurements.  No experimental band.
 
+Each row also gives ``velocity_end`` (the mean streamwise particle velocity over the last
+0.1 m of the chute, as ``cfddem compare``) and its relative difference from the reference's,
+``velocity_end_rel``: for a gas-free variant against a reference with gas, the gas effect.
+
 Variants that failed (blow-up: time step too large, explicit drag unstable...) are marked on
 the chart at their wall time as "unstable" with their varied values.  Writes
 ``speed_accuracy.png``, ``speed_accuracy.csv`` and ``speed_accuracy.json`` into the sweep
@@ -114,6 +118,15 @@ def gas_deviation(ref: dict, run: dict) -> float:
     return float(np.sqrt(np.mean((wi - wr) ** 2))) / scale if scale > 0 else math.nan
 
 
+def _velocity_end(run_dir: Path) -> float:
+    from .compare import Run
+
+    try:
+        return Run(run_dir).velocity_end()
+    except CaseError:
+        return math.nan
+
+
 def _num(x: str) -> float:
     try:
         return float(x)
@@ -148,6 +161,7 @@ def speed_accuracy(sweep_dir: str | Path, reference: str | None = None, out: str
         ref_row = cand[0]
     ref = meas[ref_row["name"]]
     ref_gas = _gas(sweep_dir / ref_row["name"])
+    ref_v_end = _velocity_end(sweep_dir / ref_row["name"])
     table = []
     for r in rows:
         entry = {"name": r["name"], "status": r["status"], "wall_time": _num(r.get("wall_time")),
@@ -156,11 +170,14 @@ def speed_accuracy(sweep_dir: str | Path, reference: str | None = None, out: str
             bed, vel = deviations(ref, meas[r["name"]])
             entry.update(bed_height_rms_mm=bed, surface_velocity_rel_rms=vel,
                          within_bands=bool(bed <= BED_BAND_MM and vel <= VELOCITY_BAND))
+            v_end = _velocity_end(sweep_dir / r["name"])
+            entry.update(velocity_end=v_end, velocity_end_rel=(v_end - ref_v_end) / ref_v_end)
             g = _gas(sweep_dir / r["name"]) if ref_gas is not None else None
             entry["gas_velocity_rel_rms"] = gas_deviation(ref_gas, g) if g is not None else math.nan
         else:
             entry.update(bed_height_rms_mm=math.nan, surface_velocity_rel_rms=math.nan, within_bands=False,
-                         gas_velocity_rel_rms=math.nan, error=r.get("error", ""))
+                         gas_velocity_rel_rms=math.nan, velocity_end=math.nan, velocity_end_rel=math.nan,
+                         error=r.get("error", ""))
         table.append(entry)
     result = {"reference": ref_row["name"], "varied": varied, "rows": table,
               "bands": {"bed_height_mm": BED_BAND_MM, "surface_velocity_rel": VELOCITY_BAND}}
@@ -168,7 +185,7 @@ def speed_accuracy(sweep_dir: str | Path, reference: str | None = None, out: str
     with (out / "speed_accuracy.csv").open("w", newline="") as fh:
         w = csv.writer(fh)
         head = ["name", *varied, "status", "wall_time", "bed_height_rms_mm", "surface_velocity_rel_rms",
-                "within_bands", "gas_velocity_rel_rms"]
+                "within_bands", "gas_velocity_rel_rms", "velocity_end", "velocity_end_rel"]
         w.writerow(head)
         for e in table:
             w.writerow([e.get(h, "") for h in head])

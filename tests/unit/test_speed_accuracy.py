@@ -34,6 +34,9 @@ def test_deviations_and_chart(tmp_path):
     assert rows["time.dt=2e-05"]["surface_velocity_rel_rms"] == pytest.approx(0.01, rel=1e-6)
     assert rows["time.dt=4e-05"]["surface_velocity_rel_rms"] == pytest.approx(0.05, rel=1e-6)
     assert rows["time.dt=2e-05"]["within_bands"] is True
+    # mean streamwise velocity over the last 0.1 m, and its difference from the reference's
+    assert rows["time.dt=4e-05"]["velocity_end"] == pytest.approx(2.10)
+    assert rows["time.dt=4e-05"]["velocity_end_rel"] == pytest.approx(0.05)
     assert rows["time.dt=4e-05"]["within_bands"] is False
     assert rows["time.dt=8e-05"]["status"] == "failed"
     assert (sweep / "speed_accuracy.png").stat().st_size > 10000
