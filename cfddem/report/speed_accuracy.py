@@ -193,6 +193,12 @@ def speed_accuracy(sweep_dir: str | Path, reference: str | None = None, out: str
     return result
 
 
+def _label(e: dict, varied: list[str]) -> str:
+    """``coupling_interval=9, cells=[8, 8, 75]``: the varied values a row sets (empty cells of a
+    mixed variants file are the case's values and are left out)."""
+    return ", ".join(f"{k.split('.')[-1]}={e[k]}" for k in varied if e.get(k) not in ("", None))
+
+
 def _chart(result: dict, path: Path) -> None:
     import matplotlib
 
@@ -213,13 +219,13 @@ def _chart(result: dict, path: Path) -> None:
             ax.axhspan(0, band, color="tab:green", alpha=0.12, label="experimental error band")
         for e in good:
             ax.plot(e["wall_time"], e[key], "o", color="tab:blue")
-            ax.annotate(", ".join(f"{k.split('.')[-1]}={e[k]}" for k in varied), (e["wall_time"], e[key]),
+            ax.annotate(_label(e, varied), (e["wall_time"], e[key]),
                         fontsize=7, xytext=(4, 3), textcoords="offset points")
         ymax = max([band * 1.5 if band is not None else 1e-3] + [e[key] for e in good])
         for e in bad:
             wt = e["wall_time"] if np.isfinite(e["wall_time"]) else 0.0
             ax.plot(wt, ymax * 1.1, "x", color="tab:red", ms=9)
-            ax.annotate("unstable: " + ", ".join(f"{k.split('.')[-1]}={e[k]}" for k in varied), (wt, ymax * 1.1),
+            ax.annotate("unstable: " + _label(e, varied), (wt, ymax * 1.1),
                         fontsize=7, color="tab:red", xytext=(4, -10), textcoords="offset points")
         ref = [e for e in rows if e["name"] == result["reference"]]
         if ref:
