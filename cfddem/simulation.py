@@ -315,7 +315,7 @@ class Simulation:
                 try:
                     self.gas.set_state(st["gas"])
                     gas_note = "; gas fields from the checkpoint"
-                except (KeyError, ValueError) as e:
+                except (KeyError, ValueError, CaseError) as e:  # another grid: CaseError on a shape
                     gas_note = f"; gas starts afresh (state does not fit: {e})"
             else:
                 gas_note = "; gas starts afresh (the source run had none)"

@@ -44,3 +44,23 @@ def test_branch_from_missing_source_names_the_key(tmp_path):
     d = box_case(tmp_path)
     with pytest.raises(CaseError, match="checkpoint.start_from"):
         load_case(d, overrides={"checkpoint.start_from": "nowhere"})
+
+
+def test_branch_onto_another_gas_grid_starts_the_gas_afresh(tmp_path):
+    """A branch may change the gas grid (the gas-grid axis of the speed-accuracy study): the
+    particles continue, the gas starts from rest on the new grid (logged), the run completes."""
+    root = __import__("pathlib").Path(__file__).resolve().parents[2]
+    ov = {"gas.enabled": True, "gas.cells": [8, 5, 50], "time.dt": 1e-5, "time.end_time": 0.002,
+          "measurements.start_time": 0.0, "study.compare_without_gas": False, "output.vtk": False,
+          "checkpoint.every_steps": 100}
+    a = Simulation(load_case(root / "cases" / "chute_16rpm", overrides=ov), tmp_path / "a", echo=False,
+                   progress=False, threads=1)
+    assert a.run().status == "done"
+    ov_b = dict(ov, **{"gas.cells": [4, 5, 25], "time.end_time": 0.0025, "checkpoint.every_steps": 0,
+                       "checkpoint.start_from": str(tmp_path / "a")})
+    b = Simulation(load_case(root / "cases" / "chute_16rpm", overrides=ov_b), tmp_path / "b", echo=False,
+                   progress=False, threads=1)
+    sb = b.run()
+    assert sb.status == "done" and sb.time == pytest.approx(0.0025)
+    assert b.gas.grid.shape == (4, 5, 25) and b.gas.n_couplings > 0
+    assert "gas starts afresh" in (tmp_path / "b" / "run.log").read_text()
