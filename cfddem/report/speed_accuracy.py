@@ -54,16 +54,17 @@ def _read_rows(sweep_dir: Path) -> list[dict]:
         return list(csv.DictReader(fh))
 
 
-def _chute(run_dir: Path) -> dict | None:
-    from ..io.results import read_measurements
+def _run(run_dir: Path):
+    """The run folder read once (:class:`cfddem.report.compare.Run`: chute and gas
+    measurements, configuration), or None without results or time-averaged chute measurements."""
+    from .compare import Run
 
-    h5 = run_dir / "results.h5"
-    if not h5.exists():
+    if not (run_dir / "results.h5").exists():
         return None
-    m = read_measurements(h5).get("chute", {})
-    if int(np.asarray(m.get("n_samples", 0))) == 0:
+    try:
+        return Run(run_dir)
+    except CaseError:
         return None
-    return m
 
 
 def deviations(ref: dict, run: dict) -> tuple[float, float]:
@@ -83,13 +84,9 @@ def deviations(ref: dict, run: dict) -> tuple[float, float]:
     return bed, vel
 
 
-def _gas(run_dir: Path) -> dict | None:
-    from ..io.results import read_measurements
-
-    h5 = run_dir / "results.h5"
-    if not h5.exists():
-        return None
-    g = read_measurements(h5).get("gas")
+def _gas(run) -> dict | None:
+    """The run's time-averaged gas field, if it has one with its cell-centre coordinates."""
+    g = run.gas
     if not g or "mean_velocity" not in g or not all(k in g for k in ("x", "y", "z")):
         return None
     return g
@@ -118,15 +115,6 @@ def gas_deviation(ref: dict, run: dict) -> float:
     return float(np.sqrt(np.mean((wi - wr) ** 2))) / scale if scale > 0 else math.nan
 
 
-def _velocity_end(run_dir: Path) -> float:
-    from .compare import Run
-
-    try:
-        return Run(run_dir).velocity_end()
-    except CaseError:
-        return math.nan
-
-
 def _num(x: str) -> float:
     try:
         return float(x)
@@ -144,8 +132,8 @@ def speed_accuracy(sweep_dir: str | Path, reference: str | None = None, out: str
     cols = list(rows[0].keys()) if rows else []
     varied = cols[1:cols.index("status")] if "status" in cols else []
     done = [r for r in rows if r["status"] in ("done", "skipped")]
-    meas = {r["name"]: _chute(sweep_dir / r["name"]) for r in done}
-    done = [r for r in done if meas[r["name"]] is not None]
+    runs = {r["name"]: _run(sweep_dir / r["name"]) for r in done}
+    done = [r for r in done if runs[r["name"]] is not None]
     if not done:
         raise CaseError("SWEEP_DIR", f"{sweep_dir}: no finished variant with chute measurements")
     if reference is None:
@@ -159,20 +147,21 @@ def speed_accuracy(sweep_dir: str | Path, reference: str | None = None, out: str
             raise CaseError("--reference", f"no finished variant named {reference!r}; have: "
                                            + ", ".join(r["name"] for r in done))
         ref_row = cand[0]
-    ref = meas[ref_row["name"]]
-    ref_gas = _gas(sweep_dir / ref_row["name"])
-    ref_v_end = _velocity_end(sweep_dir / ref_row["name"])
+    ref_run = runs[ref_row["name"]]
+    ref_gas = _gas(ref_run)
+    ref_v_end = ref_run.velocity_end()
     table = []
     for r in rows:
         entry = {"name": r["name"], "status": r["status"], "wall_time": _num(r.get("wall_time")),
                  **{k: r[k] for k in varied}}
-        if r["name"] in meas and meas[r["name"]] is not None:
-            bed, vel = deviations(ref, meas[r["name"]])
+        run = runs.get(r["name"])
+        if run is not None:
+            bed, vel = deviations(ref_run.chute, run.chute)
             entry.update(bed_height_rms_mm=bed, surface_velocity_rel_rms=vel,
                          within_bands=bool(bed <= BED_BAND_MM and vel <= VELOCITY_BAND))
-            v_end = _velocity_end(sweep_dir / r["name"])
+            v_end = run.velocity_end()
             entry.update(velocity_end=v_end, velocity_end_rel=(v_end - ref_v_end) / ref_v_end)
-            g = _gas(sweep_dir / r["name"]) if ref_gas is not None else None
+            g = _gas(run) if ref_gas is not None else None
             entry["gas_velocity_rel_rms"] = gas_deviation(ref_gas, g) if g is not None else math.nan
         else:
             entry.update(bed_height_rms_mm=math.nan, surface_velocity_rel_rms=math.nan, within_bands=False,
