@@ -613,8 +613,10 @@ class CoupledGas:
         """``(G, Gb, solid)`` at the current pressure, one compiled pass over the cells
         (:func:`_pressure_fields_kernel`): G (nx, ny, nz, 3) the three centre fields of step 5a,
         Gb those of step 5b (zero for a component without a boundary side), solid (3,) the solid part
-        ``sum_f (1 - eps_f) g_f`` of the gas's pressure exchange per component (times
-        dt_g V_cell: :meth:`_solid_pressure_impulse`).  G and Gb live in work arrays that the
+        ``sum_f (1 - eps_f) g_f`` of the gas's pressure exchange per component: of the gas's
+        pressure impulse ``-dt_g sum_f eps_f g_f V_cell = -dt_g V_cell sum_f g_f + dt_g V_cell solid``
+        over the updated faces, the first part telescopes to 0 on periodic axes, and the
+        particles' share of step 5a is minus the second.  G and Gb live in work arrays that the
         next call overwrites."""
         gas, grid = self.gas, self.grid
         shape = tuple(grid.shape) + (3,)
@@ -626,8 +628,7 @@ class CoupledGas:
         solid = np.empty(3)
         p = np.ascontiguousarray(gas.p.data, dtype=np.float64)
         e = np.ascontiguousarray(gas.eps.data, dtype=np.float64)
-        _pressure_fields_kernel(p, e, int(grid.halo), self._gparams[0], self._gparams[1], self._gparams[2],
-                                self._gparams[3], self._gparams[4], self._gparams[5], G, Gb, solid)
+        _pressure_fields_kernel(p, e, int(grid.halo), *self._gparams, G, Gb, solid)
         return G, Gb, solid
 
     def _centre_from_faces(self, grads, boundary=False):
@@ -658,17 +659,6 @@ class CoupledGas:
                 G[_sl(c, n - 1)] += 0.5 * g[_sl(c, n)]
             out.append(G)
         return out
-
-    def _solid_pressure_impulse(self, dtg, grads=None):
-        """Gas side of the pressure exchange: of the gas's pressure impulse
-        ``-dt_g sum_f eps_f g_f V_cell = -dt_g V_cell sum_f g_f + dt_g sum_f (1 - eps_f) g_f V_cell``
-        this returns the second (solid) part, over the updated faces (g is zero elsewhere),
-        eps_f from the gas's own (halo-filled) porosity; the first part telescopes to 0 on
-        periodic axes.  The particles' share of 5a should be minus this.  ``grads``: the
-        current face gradients if already computed."""
-        vc = self.grid.cell_volume
-        grads = self._face_gradients() if grads is None else grads
-        return np.array([dtg * vc * float(np.sum((1.0 - ef) * g)) for ef, g in zip(self._face_porosity(), grads)])
 
     def _report_low(self, por):
         self._low_reports += 1
