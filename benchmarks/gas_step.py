@@ -26,11 +26,12 @@ Usage: python benchmarks/gas_step.py [--steps 20] [--repeats 3] [--threads 1,2] 
                                      [--no-cube] [--no-amg] [--json]
        python benchmarks/gas_step.py --tol-sweep      (mg iterations and defect against tol)
        python benchmarks/gas_step.py --defect-sweep   (mg iterations and defect against defect_tol)
-       python benchmarks/gas_step.py --compare DIR [--repeats 3] [--steps 20]
+       python benchmarks/gas_step.py --compare DIR [--repeats 3] [--steps 20] [--grid G1,G2] [--threads 1,2]
            before/after in one command: DIR holds an older ``cfddem`` package (for example
            ``git archive <commit> cfddem | tar -x -C DIR``); each repeat runs this script once
            with that package and once with the current one (separate processes, alternated,
-           mg, 1 thread, chute grid), and prints ranges and the old/new ratio;
+           mg, chute grids 16x15x150 and 16x8x150, 1 thread unless --threads is given: each
+           count in its own processes), and prints ranges and the old/new ratio;
            ``--particles CHECKPOINT`` adds the particle step of the chute (no gas, 1 thread)
 """
 
@@ -268,9 +269,17 @@ def particle_step_cost(checkpoint, t_start=1.743, end_time=1.76, short=0.0005):
           f"wall {(w1 - w0) / ds * 1e3:.2f} ms (particle part {(p1 - p0) / ds * 1e3:.2f} ms)")
 
 
-def compare(old_dir, repeats, steps):
+def compare(old_dir, repeats, steps, grids=("16x15x150", "16x8x150"), threads="1"):
     """Alternate subprocess runs of this benchmark with the package in ``old_dir`` and with the
-    current one (chute grid, mg, 1 thread); print ranges and ratios old/new per repeat."""
+    current one (chute grid of each of ``grids``, mg, numba threads ``threads``: each count
+    in its own process); print ranges and ratios old/new per repeat."""
+    for grid in grids:
+        for nt in threads.split(","):
+            print(f"--- chute grid {grid}, {nt} numba thread(s)")
+            _compare_one(old_dir, repeats, steps, grid, nt)
+
+
+def _compare_one(old_dir, repeats, steps, grid, nt):
     import json
     import subprocess
     import sys
@@ -282,19 +291,19 @@ def compare(old_dir, repeats, steps):
             env = dict(os.environ, PYTHONPATH=path)
             if tag == "old":  # its own numba cache: the old kernels have the same names
                 env["NUMBA_CACHE_DIR"] = os.environ.get("NUMBA_CACHE_DIR", "/tmp/numba_cache") + "_compare_old"
-            out = subprocess.run([sys.executable, os.path.abspath(__file__), "--no-amg", "--no-cube", "--threads", "1",
-                                  "--repeats", "1", "--steps", str(steps), "--json"], env=env, cwd="/tmp",
+            out = subprocess.run([sys.executable, os.path.abspath(__file__), "--no-amg", "--no-cube", "--threads", nt,
+                                  "--grid", grid, "--repeats", "1", "--steps", str(steps), "--json"], env=env, cwd="/tmp",
                                  capture_output=True, text=True, check=True).stdout
             res[tag].append(json.loads(out.strip().splitlines()[-1]))
     for kind in ("eps1", "bed"):
         for tag in ("old", "new"):
-            r = [x[kind]["mg1"][0] for x in res[tag]]
+            r = [x[kind]["mg" + nt][0] for x in res[tag]]
             print(f"chute {kind:4s} {tag}: CPU {fmt_range([x['cpu'] for x in r], 10)} ms/step, "
                   f"wall {fmt_range([x['wall'] for x in r], 10)} ms (predictor {fmt_range([x['pred'] for x in r])}, "
                   f"pressure {fmt_range([x['pres'] for x in r])}, rest {fmt_range([x['rest'] for x in r])}); "
                   f"pressure iterations {r[0]['its']:.1f} (max {r[0]['maxits']}), mass defect {r[0]['defect']:.1e}")
-        rc = [o[kind]["mg1"][0]["cpu"] / n[kind]["mg1"][0]["cpu"] for o, n in zip(res["old"], res["new"])]
-        rw = [o[kind]["mg1"][0]["wall"] / n[kind]["mg1"][0]["wall"] for o, n in zip(res["old"], res["new"])]
+        rc = [o[kind]["mg" + nt][0]["cpu"] / n[kind]["mg" + nt][0]["cpu"] for o, n in zip(res["old"], res["new"])]
+        rw = [o[kind]["mg" + nt][0]["wall"] / n[kind]["mg" + nt][0]["wall"] for o, n in zip(res["old"], res["new"])]
         print(f"chute {kind:4s} old/new: CPU x{fmt_range(rc, 4, 2)}, wall x{fmt_range(rw, 4, 2)}")
 
 
@@ -323,10 +332,14 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--steps", type=int, default=20)
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--threads", default="1,2", help="numba thread counts for mg, comma-separated (amg: the first)")
+    ap.add_argument("--threads", default=None,
+                    help="numba thread counts for mg, comma-separated (amg: the first); default 1,2 (--compare: 1)")
     ap.add_argument("--no-amg", action="store_true", help="time the multigrid solver only")
     ap.add_argument("--tol", type=float, default=1e-8)
     ap.add_argument("--no-cube", action="store_true", help="skip the 64^3 grid")
+    ap.add_argument("--grid", default=None,
+                    help="chute cells nx x ny x nz over the same box (16x8x150: the coarser gas grid); with "
+                         "--compare a comma-separated list (default 16x15x150,16x8x150)")
     ap.add_argument("--tol-sweep", action="store_true", help="only the tolerance sweep (mg, chute bed)")
     ap.add_argument("--defect-sweep", action="store_true", help="only the defect_tol sweep (mg, chute)")
     ap.add_argument("--json", action="store_true", help="print the results as one JSON line at the end")
@@ -336,11 +349,12 @@ def main(argv=None):
                          "developed checkpoint (copied), to 1.76 s")
     a = ap.parse_args(argv)
     if a.compare:
-        compare(a.compare, a.repeats, a.steps)
+        compare(a.compare, a.repeats, a.steps, tuple((a.grid or "16x15x150,16x8x150").split(",")),
+                a.threads or "1")
         if a.particles:
             particle_step_cost(a.particles)
         return
-    threads = tuple(int(t) for t in a.threads.split(","))
+    threads = tuple(int(t) for t in (a.threads or "1,2").split(","))
     solvers = ("mg",) if a.no_amg else ("mg", "amg")
     nt = set_threads(threads[0])
     print(f"numba threads: {threads}, pressure tolerance {a.tol:g}, {a.steps} steps x {a.repeats} repeats; "
@@ -352,11 +366,12 @@ def main(argv=None):
         defect_sweep(a.steps)
         return
     dt = 1e-3
-    g, _ = chute_solver()
+    shape = tuple(int(v) for v in (a.grid or "16x15x150").split("x"))
+    g, _ = chute_solver(shape)
     n = a.steps + 4
     out = {}
     for kind in ("eps1", "bed"):
-        out[kind] = bench_pair(f"chute {kind}", lambda sv: chute_solver(tol=a.tol, solver=sv),
+        out[kind] = bench_pair(f"chute {kind}", lambda sv: chute_solver(shape, tol=a.tol, solver=sv),
                                chute_fields(g, kind, n), a.steps, dt, a.repeats, threads, solvers)
     if not a.no_cube:
         gc, _ = cube_solver()

@@ -84,24 +84,37 @@ SIDES = ("x-", "x+", "y-", "y+", "z-", "z+")
 # ------------------------------------------------------------------------------------------
 # compiled kernels: level l occupies cells off..off+nx*ny*nz of every level array, C order
 # ------------------------------------------------------------------------------------------
+@kernel
+def _pk(k, n):
+    """Storage position of z index k in a z row of n cells: the even k first (k/2), then
+    the odd k (ceil(n/2) + (k-1)/2), so that the cells of one red-black colour in a row are
+    contiguous and their z neighbours sit at fixed offsets (see "Storage" in the module doc)."""
+    return (k >> 1) if (k & 1) == 0 else ((n + 1) >> 1) + (k >> 1)
+
+
 @parallel_kernel
 def _fine_coefficients(ax, ay, az, sc, dirich, periodic, cE, cN, cT, dX, dY, dZ):
     """Level-0 weights (volume-scaled): cE[U(c)] couples c to its +x neighbour (wrapping), zero
     at non-periodic +x sides; dX: Dirichlet boundary terms.  sc[d] = V / h_d^2.  x planes in
-    parallel (each cell writes its own entries).  The k loop has no branches (the k = 0 and
-    k = nz - 1 entries are fixed after it), so it vectorises."""
+    parallel (each cell writes its own entries).  Red-black storage along z (:func:`_pk`):
+    the even k, then the odd k, each a branch-free loop (the k = 0 and k = nz - 1 entries
+    are fixed after them)."""
     nx, ny, nz = ax.shape[0] - 1, ay.shape[1] - 1, az.shape[2] - 1
+    h = (nz + 1) // 2
     for i in prange(nx):
         cutx = i == nx - 1 and (periodic[0] == 0 or nx == 1)
         for j in range(ny):
             cuty = j == ny - 1 and (periodic[1] == 0 or ny == 1)
             row = (i * ny + j) * nz
-            for k in range(nz):
-                c = row + k
-                cE[U(c)] = 0.0 if cutx else ax[U(i + 1), U(j), U(k)] * sc[0]
-                cN[U(c)] = 0.0 if cuty else ay[U(i), U(j + 1), U(k)] * sc[1]
-                cT[U(c)] = az[U(i), U(j), U(k + 1)] * sc[2]
-                dZ[U(c)] = 0.0
+            for half in range(2):
+                pb = row + (0 if half == 0 else h)
+                for m in range(h if half == 0 else nz - h):
+                    c = pb + m
+                    k = 2 * m + half
+                    cE[U(c)] = 0.0 if cutx else ax[U(i + 1), U(j), U(k)] * sc[0]
+                    cN[U(c)] = 0.0 if cuty else ay[U(i), U(j + 1), U(k)] * sc[1]
+                    cT[U(c)] = az[U(i), U(j), U(k + 1)] * sc[2]
+                    dZ[U(c)] = 0.0
             if i == 0 or i == nx - 1:
                 for k in range(nz):
                     d = 0.0
@@ -109,7 +122,7 @@ def _fine_coefficients(ax, ay, az, sc, dirich, periodic, cE, cN, cT, dX, dY, dZ)
                         d += 2.0 * ax[U(0), U(j), U(k)] * sc[0]
                     if i == nx - 1 and dirich[1] == 1:
                         d += 2.0 * ax[U(nx), U(j), U(k)] * sc[0]
-                    dX[U(row + k)] = d
+                    dX[U(row + _pk(k, nz))] = d
             else:
                 for k in range(nz):
                     dX[U(row + k)] = 0.0
@@ -120,12 +133,13 @@ def _fine_coefficients(ax, ay, az, sc, dirich, periodic, cE, cN, cT, dX, dY, dZ)
                         d += 2.0 * ay[U(i), U(0), U(k)] * sc[1]
                     if j == ny - 1 and dirich[3] == 1:
                         d += 2.0 * ay[U(i), U(ny), U(k)] * sc[1]
-                    dY[U(row + k)] = d
+                    dY[U(row + _pk(k, nz))] = d
             else:
                 for k in range(nz):
                     dY[U(row + k)] = 0.0
+            last = row + _pk(nz - 1, nz)
             if periodic[2] == 0 or nz == 1:
-                cT[U(row + nz - 1)] = 0.0
+                cT[U(last)] = 0.0
             d = 0.0
             if dirich[4] == 1:
                 d += 2.0 * az[U(i), U(j), U(0)] * sc[2]
@@ -136,7 +150,7 @@ def _fine_coefficients(ax, ay, az, sc, dirich, periodic, cE, cN, cT, dX, dY, dZ)
                 d = 0.0
                 if dirich[5] == 1:
                     d += 2.0 * az[U(i), U(j), U(nz)] * sc[2]
-                dZ[U(row + nz - 1)] = d
+                dZ[U(last)] = d
 
 
 @kernel
@@ -168,8 +182,8 @@ def _coarsen_and_factor(LV, AOFF, AXI, AXF, cE, cN, cT, dX, dY, dZ, dg, idg, den
                     K = AXI[0, 2, U(oz + k)]
                     fz = AXF[0, 2, U(oz + k)]
                     gz = AXF[1, 2, U(oz + k)]
-                    c = off + (i * ny + j) * nz + k
-                    C = offc + (I * my + J) * mz + K
+                    c = off + (i * ny + j) * nz + _pk(k, nz)
+                    C = offc + (I * my + J) * mz + _pk(K, mz)
                     # fx is nonzero only on the last fine child of I (the coarse +x face)
                     cE[U(C)] += fx * cE[U(c)]
                     cN[U(C)] += fy * cN[U(c)]
@@ -185,9 +199,10 @@ def _coarsen_and_factor(LV, AOFF, AXI, AXF, cE, cN, cT, dX, dY, dZ, dg, idg, den
                 jm = j - 1 if j > 0 else ny - 1
                 for k in range(nz):
                     km = k - 1 if k > 0 else nz - 1
-                    c = off + (i * ny + j) * nz + k
-                    dg[U(c)] = (cE[U(c)] + cE[U(off + (im * ny + j) * nz + k)] + cN[U(c)] + cN[U(off + (i * ny + jm) * nz + k)]
-                             + cT[U(c)] + cT[U(off + (i * ny + j) * nz + km)] + dX[U(c)] + dY[U(c)] + dZ[U(c)])
+                    pk = _pk(k, nz)
+                    c = off + (i * ny + j) * nz + pk
+                    dg[U(c)] = (cE[U(c)] + cE[U(off + (im * ny + j) * nz + pk)] + cN[U(c)] + cN[U(off + (i * ny + jm) * nz + pk)]
+                             + cT[U(c)] + cT[U(off + (i * ny + j) * nz + _pk(km, nz))] + dX[U(c)] + dY[U(c)] + dZ[U(c)])
                     idg[U(c)] = omega / dg[U(c)]
     # coarsest level: dense matrix and its Cholesky factor
     nx, ny, nz, off = LV[L - 1, 0], LV[L - 1, 1], LV[L - 1, 2], LV[L - 1, 3]
@@ -201,15 +216,16 @@ def _coarsen_and_factor(LV, AOFF, AXI, AXF, cE, cN, cT, dX, dY, dZ, dg, idg, den
             jp = j + 1 if j < ny - 1 else 0
             for k in range(nz):
                 kp = k + 1 if k < nz - 1 else 0
-                c = (i * ny + j) * nz + k
+                pk = _pk(k, nz)
+                c = (i * ny + j) * nz + pk  # dense index = storage position
                 dense[c, c] += dg[off + c]
                 for dd in range(3):
                     if dd == 0:
-                        nb, w = (ip * ny + j) * nz + k, cE[off + c]
+                        nb, w = (ip * ny + j) * nz + pk, cE[off + c]
                     elif dd == 1:
-                        nb, w = (i * ny + jp) * nz + k, cN[off + c]
+                        nb, w = (i * ny + jp) * nz + pk, cN[off + c]
                     else:
-                        nb, w = (i * ny + j) * nz + kp, cT[off + c]
+                        nb, w = (i * ny + j) * nz + _pk(kp, nz), cT[off + c]
                     if w != 0.0:
                         dense[c, nb] -= w
                         dense[nb, c] -= w
@@ -258,11 +274,15 @@ def _gs_row(i, nx, ny, nz, off, cE, cN, cT, dg, idg, x, b, col, reverse, zero):
     are independent (x neighbours have the other colour) except across an odd periodic x
     wrap, which :func:`_gs_colour_par` orders explicitly.  ``zero``: x is zero on entry
     everywhere (the first colour of the first sweep from a zero guess), so the update is
-    x = idg b, exactly what the full formula gives then."""
+    x = idg b, exactly what the full formula gives then.  Red-black storage (:func:`_pk`):
+    the colour's cells of a z row are contiguous, in increasing k, and their z neighbours
+    are at the fixed offsets (h - 1, h) for even k and (-h, 1 - h) for odd k, h = ceil(nz/2),
+    so the interior loop is a unit-stride loop that vectorises."""
     im = i - 1 if i > 0 else nx - 1
     ip = i + 1 if i < nx - 1 else 0
     dxm = (im - i) * ny * nz
     dxp = (ip - i) * ny * nz
+    h = (nz + 1) // 2
     for jj in range(ny):
         j = ny - 1 - jj if reverse else jj
         jm = j - 1 if j > 0 else ny - 1
@@ -275,11 +295,13 @@ def _gs_row(i, nx, ny, nz, off, cE, cN, cT, dg, idg, x, b, col, reverse, zero):
         if klast < k0:
             continue
         if zero:
-            for kk in range(k0, klast + 1, 2):
-                c = row + kk
+            base = row + (0 if k0 == 0 else h)
+            for c in range(base, base + (klast - k0) // 2 + 1):
                 x[U(c)] = b[U(c)] * idg[U(c)]
             continue
-        # interior cells of this colour: k in [kin0, kin1] (no z wrap)
+        dm = h - 1 if k0 == 0 else -h  # offsets of the z neighbours (interior cells)
+        dp = h if k0 == 0 else 1 - h
+        # interior cells of this colour: k in [kin0, kin1] (no z wrap), contiguous positions
         kin0 = k0 if k0 > 0 else 2
         kin1 = klast if klast < nz - 1 else klast - 2
         first_wrap = k0 == 0
@@ -289,22 +311,22 @@ def _gs_row(i, nx, ny, nz, off, cE, cN, cT, dg, idg, x, b, col, reverse, zero):
             if part == 0:
                 if first_wrap:
                     c = row
-                    cp = row + 1 if nz > 1 else row
-                    x[U(c)] += (b[U(c)] - _ax(c, row + nz - 1, cp, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)) * idg[U(c)]
+                    cp = row + h if nz > 1 else row
+                    x[U(c)] += (b[U(c)] - _ax(c, row + _pk(nz - 1, nz), cp, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)) * idg[U(c)]
             elif part == 1:
                 if kin1 >= kin0:
+                    c0 = row + _pk(kin0, nz)
+                    c1 = row + _pk(kin1, nz)
                     if reverse:
-                        for kk in range(kin1, kin0 - 1, -2):
-                            c = row + kk
-                            x[U(c)] += (b[U(c)] - _ax(c, c - 1, c + 1, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)) * idg[U(c)]
+                        for c in range(c1, c0 - 1, -1):
+                            x[U(c)] += (b[U(c)] - _ax(c, c + dm, c + dp, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)) * idg[U(c)]
                     else:
-                        for kk in range(kin0, kin1 + 1, 2):
-                            c = row + kk
-                            x[U(c)] += (b[U(c)] - _ax(c, c - 1, c + 1, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)) * idg[U(c)]
+                        for c in range(c0, c1 + 1):
+                            x[U(c)] += (b[U(c)] - _ax(c, c + dm, c + dp, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)) * idg[U(c)]
             else:
                 if last_wrap:
-                    c = row + nz - 1
-                    x[U(c)] += (b[U(c)] - _ax(c, c - 1, row, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)) * idg[U(c)]
+                    c = row + _pk(nz - 1, nz)
+                    x[U(c)] += (b[U(c)] - _ax(c, row + _pk(nz - 2, nz), row, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)) * idg[U(c)]
 
 
 @parallel_kernel
@@ -382,37 +404,42 @@ def _apply_par(nx, ny, nz, off, cE, cN, cT, dg, x, b, y, mode, want, part):
 
 @kernel
 def _apply_row(i, nx, ny, nz, off, cE, cN, cT, dg, x, b, y, mode):
-    """The x plane i of :func:`_apply_level`."""
-    if True:
-        im = i - 1 if i > 0 else nx - 1
-        ip = i + 1 if i < nx - 1 else 0
-        for j in range(ny):
-            jm = j - 1 if j > 0 else ny - 1
-            jp = j + 1 if j < ny - 1 else 0
-            row = off + (i * ny + j) * nz
-            dxm = (im - i) * ny * nz
-            dxp = (ip - i) * ny * nz
-            dym = (jm - j) * nz
-            dyp = (jp - j) * nz
-            if nz == 1:
-                v = _ax(row, row, row, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)
-                y[U(row)] = b[U(row)] - v if mode == 1 else v
-                continue
-            v0 = _ax(row, row + nz - 1, row + 1, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)
-            c = row + nz - 1
-            v1 = _ax(c, c - 1, row, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)
-            if mode == 1:
-                for k in range(1, nz - 1):
-                    c = row + k
-                    y[U(c)] = b[U(c)] - _ax(c, c - 1, c + 1, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)
-                y[U(row)] = b[U(row)] - v0
-                y[U(row + nz - 1)] = b[U(row + nz - 1)] - v1
-            else:
-                for k in range(1, nz - 1):
-                    c = row + k
-                    y[U(c)] = _ax(c, c - 1, c + 1, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)
-                y[U(row)] = v0
-                y[U(row + nz - 1)] = v1
+    """The x plane i of :func:`_apply_level` (red-black storage along z, :func:`_pk`: the
+    interior even k, then the interior odd k, each a unit-stride loop)."""
+    im = i - 1 if i > 0 else nx - 1
+    ip = i + 1 if i < nx - 1 else 0
+    h = (nz + 1) // 2
+    ne = (nz - 2) // 2  # interior even k: positions 1..ne
+    no = (nz - 3) // 2 + 1  # interior odd k: positions h..h+no-1
+    for j in range(ny):
+        jm = j - 1 if j > 0 else ny - 1
+        jp = j + 1 if j < ny - 1 else 0
+        row = off + (i * ny + j) * nz
+        dxm = (im - i) * ny * nz
+        dxp = (ip - i) * ny * nz
+        dym = (jm - j) * nz
+        dyp = (jp - j) * nz
+        if nz == 1:
+            v = _ax(row, row, row, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)
+            y[U(row)] = b[U(row)] - v if mode == 1 else v
+            continue
+        cl = row + _pk(nz - 1, nz)
+        v0 = _ax(row, cl, row + h, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)
+        v1 = _ax(cl, row + _pk(nz - 2, nz), row, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)
+        if mode == 1:
+            for c in range(row + 1, row + 1 + ne):
+                y[U(c)] = b[U(c)] - _ax(c, c + h - 1, c + h, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)
+            for c in range(row + h, row + h + no):
+                y[U(c)] = b[U(c)] - _ax(c, c - h, c - h + 1, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)
+            y[U(row)] = b[U(row)] - v0
+            y[U(cl)] = b[U(cl)] - v1
+        else:
+            for c in range(row + 1, row + 1 + ne):
+                y[U(c)] = _ax(c, c + h - 1, c + h, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)
+            for c in range(row + h, row + h + no):
+                y[U(c)] = _ax(c, c - h, c - h + 1, dxm, dxp, dym, dyp, cE, cN, cT, dg, x)
+            y[U(row)] = v0
+            y[U(cl)] = v1
 
 
 @kernel
@@ -428,12 +455,12 @@ def _restrict_rows(src, dst, n0, n1, n2, m, axis, AXI, AXF, o, a0, a1):
                 rd = (i * n1 + j) * m
                 for K in range(m):
                     dst[U(rd + K)] = 0.0
-                for k in range(n2):
+                for k in range(n2):  # k: storage position (AXI/AXF rows 3-4 / 4-5 are in that order)
                     v = src[U(rs + k)]
-                    dst[U(rd + AXI[1, 2, U(o + k)])] += AXF[2, 2, U(o + k)] * v
-                    w2 = AXF[3, 2, U(o + k)]
+                    dst[U(rd + AXI[3, 2, U(o + k)])] += AXF[4, 2, U(o + k)] * v
+                    w2 = AXF[5, 2, U(o + k)]
                     if w2 != 0.0:
-                        dst[U(rd + AXI[2, 2, U(o + k)])] += w2 * v
+                        dst[U(rd + AXI[4, 2, U(o + k)])] += w2 * v
     elif axis == 1:
         for i in range(a0, a1):
             for c in range(i * m * n2, (i + 1) * m * n2):
@@ -494,11 +521,11 @@ def _prolong_rows(src, dst, n0, n1, n2, axis, AXI, AXF, o, add, i0, i1):
         for ij in range(i0 * n1, i1 * n1):
             rs = ij * m
             rd = ij * n2
-            for k in range(n2):
-                v = AXF[2, 2, U(o + k)] * src[U(rs + AXI[1, 2, U(o + k)])]
-                w2 = AXF[3, 2, U(o + k)]
+            for k in range(n2):  # k: storage position
+                v = AXF[4, 2, U(o + k)] * src[U(rs + AXI[3, 2, U(o + k)])]
+                w2 = AXF[5, 2, U(o + k)]
                 if w2 != 0.0:
-                    v += w2 * src[U(rs + AXI[2, 2, U(o + k)])]
+                    v += w2 * src[U(rs + AXI[4, 2, U(o + k)])]
                 if add:
                     dst[U(rd + k)] += v
                 else:
@@ -625,9 +652,21 @@ def _vcycle(LV, LF, AOFF, AXI, AXF, cE, cN, cT, dg, idg, dense, x, b, r, t1, t2,
         # restriction b_{l+1} = P^T r_l, one axis at a time (z, y, x)
         par = LF[l, 0] == 1
         ox, oy, oz = AOFF[l, 0], AOFF[l, 1], AOFF[l, 2]
-        _restrict_axis(r[off:off + nx * ny * nz], t1, nx, ny, nz, mz, 2, AXI, AXF, oz, par)
-        _restrict_axis(t1, t2, nx, ny, mz, my, 1, AXI, AXF, oy, par)
-        _restrict_axis(t2, b[offc:offc + mx * my * mz], nx, my, mz, mx, 0, AXI, AXF, ox, par)
+        # an axis that is not coarsened (m = n) has the identity transfer: skipped (exact)
+        cx, cy, cz = mx != nx, my != ny, mz != nz
+        last = 0 if cx else (1 if cy else 2)  # the last coarsened axis writes b_{l+1}
+        bc = b[offc:offc + mx * my * mz]
+        src = r[off:off + nx * ny * nz]
+        if cz:
+            dst = bc if last == 2 else t1[:nx * ny * mz]
+            _restrict_axis(src, dst, nx, ny, nz, mz, 2, AXI, AXF, oz, par)
+            src = dst
+        if cy:
+            dst = bc if last == 1 else t2[:nx * my * mz]
+            _restrict_axis(src, dst, nx, ny, mz, my, 1, AXI, AXF, oy, par)
+            src = dst
+        if cx:
+            _restrict_axis(src, bc, nx, my, mz, mx, 0, AXI, AXF, ox, par)
     # coarsest: Cholesky solve
     nx, ny, nz, off = LV[L - 1, 0], LV[L - 1, 1], LV[L - 1, 2], LV[L - 1, 3]
     n = nx * ny * nz
@@ -647,9 +686,21 @@ def _vcycle(LV, LF, AOFF, AXI, AXF, cE, cN, cT, dg, idg, dense, x, b, r, t1, t2,
         ox, oy, oz = AOFF[l, 0], AOFF[l, 1], AOFF[l, 2]
         par, xdep = LF[l, 0] == 1, LF[l, 1] == 1
         # prolongation x_l += P x_{l+1}, one axis at a time (x, y, z)
-        _prolong_axis(x[offc:offc + mx * my * mz], t2[:nx * my * mz], nx, my, mz, 0, AXI, AXF, ox, False, par)
-        _prolong_axis(t2[:nx * my * mz], t1[:nx * ny * mz], nx, ny, mz, 1, AXI, AXF, oy, False, par)
-        _prolong_axis(t1[:nx * ny * mz], x[off:off + nx * ny * nz], nx, ny, nz, 2, AXI, AXF, oz, True, par)
+        # (identity transfers of axes that are not coarsened skipped; the last one adds)
+        cx, cy, cz = mx != nx, my != ny, mz != nz
+        last = 2 if cz else (1 if cy else 0)
+        xl = x[off:off + nx * ny * nz]
+        src = x[offc:offc + mx * my * mz]
+        if cx:
+            dst = xl if last == 0 else t2[:nx * my * mz]
+            _prolong_axis(src, dst, nx, my, mz, 0, AXI, AXF, ox, last == 0, par)
+            src = dst
+        if cy:
+            dst = xl if last == 1 else t1[:nx * ny * mz]
+            _prolong_axis(src, dst, nx, ny, mz, 1, AXI, AXF, oy, last == 1, par)
+            src = dst
+        if cz:
+            _prolong_axis(src, xl, nx, ny, nz, 2, AXI, AXF, oz, True, par)
         if deg > 0:
             _apply_level(nx, ny, nz, off, cE, cN, cT, dg, x, b, r, 1)
             _chebyshev(nx, ny, nz, off, cE, cN, cT, dg, x, r, dw, qw, deg, lmin, 2.0, False)
@@ -922,8 +973,11 @@ class MGPressureSolver:
         # axis data, concatenated over levels per axis
         lens = [[shapes[l][d] for l in range(L - 1)] for d in range(3)]
         M = max(1, max(sum(x) for x in lens))
-        self._AXI = np.zeros((3, 3, M), dtype=np.int64)  # [par, i1, i2][axis][fine cell]
-        self._AXF = np.zeros((4, 3, M))  # [facf, dfac, w1, w2][axis][fine cell]
+        # [par, i1, i2, i1s, i2s][axis][fine cell]: i1s, i2s (z axis only) are i1, i2 as coarse
+        # storage positions, listed in fine storage order (red-black along z), likewise
+        # [facf, dfac, w1, w2, w1s, w2s]: the z transfers then run in storage order
+        self._AXI = np.zeros((5, 3, M), dtype=np.int64)
+        self._AXF = np.zeros((6, 3, M))
         self._AOFF = np.zeros((max(L - 1, 1), 3), dtype=np.int64)
         for d in range(3):
             o = 0
@@ -938,6 +992,16 @@ class MGPressureSolver:
                 self._AXF[1, d, o:o + n] = dfac
                 self._AXF[2, d, o:o + n] = w1
                 self._AXF[3, d, o:o + n] = w2
+                if d == 2:
+                    m = W.size
+                    kf = np.concatenate([np.arange(0, n, 2), np.arange(1, n, 2)])  # k at each position
+                    pos_c = np.concatenate([np.arange(0, m, 2), np.arange(1, m, 2)])
+                    cpos = np.empty(m, dtype=np.int64)
+                    cpos[pos_c] = np.arange(m)  # coarse K -> its storage position
+                    self._AXI[3, d, o:o + n] = cpos[i1[kf]]
+                    self._AXI[4, d, o:o + n] = cpos[i2[kf]]
+                    self._AXF[4, d, o:o + n] = w1[kf]
+                    self._AXF[5, d, o:o + n] = w2[kf]
                 o += n
         self._cE, self._cN, self._cT = np.zeros(tot), np.zeros(tot), np.zeros(tot)
         self._dX, self._dY, self._dZ = np.zeros(tot), np.zeros(tot), np.zeros(tot)
@@ -952,7 +1016,28 @@ class MGPressureSolver:
         self._vec = [np.zeros(self.N) for _ in range(6)]  # b, x, r, z, p, q
         self._part = np.zeros(max(nx, 1))  # per-plane partial sums
         self._ones = np.ones(self.N)
+        # red-black storage along z: position s of level 0 holds the cell perm[s] of C order
+        self._perm = self.storage_order(0)
         self._ready = False
+
+    def storage_order(self, level: int) -> np.ndarray:
+        """C-order (natural) index of the cell stored at each position of a level's arrays:
+        every z row holds its even k first, then its odd k (module doc, "Storage")."""
+        nx, ny, nz = self.shapes[level]
+        h = (nz + 1) // 2
+        k = np.concatenate([np.arange(0, nz, 2), np.arange(1, nz, 2)])
+        assert k.size == nz and (nz == 0 or np.count_nonzero(k % 2 == 0) == h)
+        rows = np.arange(nx * ny, dtype=np.int64)[:, None] * nz
+        return (rows + k[None, :]).ravel()
+
+    def level_array(self, name: str, level: int) -> np.ndarray:
+        """A copy of one of the level's coefficient arrays (``"cE"``, ``"cN"``, ``"cT"``, ``"dX"``,
+        ``"dY"``, ``"dZ"``, ``"dg"``) in natural order, shape (nx, ny, nz) of the level."""
+        nx, ny, nz, off = (int(v) for v in self._LV[level])
+        a = getattr(self, "_" + name)[off:off + nx * ny * nz]
+        out = np.empty(nx * ny * nz)
+        out[self.storage_order(level)] = a
+        return out.reshape(nx, ny, nz)
 
     @property
     def levels(self) -> list:
@@ -994,17 +1079,21 @@ class MGPressureSolver:
         """A phi (not volume-scaled: the operator of PressureSolver) for phi of shape (nx, ny, nz)."""
         nx, ny, nz = self.grid.shape
         y = np.empty(self.N)
-        _matvec(nx, ny, nz, self._cE, self._cN, self._cT, self._dg,
-                np.ascontiguousarray(phi, dtype=np.float64).ravel(), y)
-        return (y / self._vol).reshape(self.grid.shape)
+        xs = np.ascontiguousarray(phi, dtype=np.float64).ravel()[self._perm]
+        _matvec(nx, ny, nz, self._cE, self._cN, self._cT, self._dg, xs, y)
+        out = np.empty(self.N)
+        out[self._perm] = y
+        return (out / self._vol).reshape(self.grid.shape)
 
     def vcycle(self, r: np.ndarray) -> np.ndarray:
         """One V-cycle applied to a (volume-scaled) residual r: the preconditioner M r."""
         z = np.empty(self.N)
         _vcycle(self._LV, self._LF, self._AOFF, self._AXI, self._AXF, *self._v, self._dense, self._xl, self._bl,
                 self._rl, self._t1, self._t2, self._dw, self._qw, self.nu, self.chebyshev, 2.0 / self.cheb_ratio,
-                np.ascontiguousarray(r, dtype=np.float64).ravel(), z, self._part)
-        return z
+                np.ascontiguousarray(r, dtype=np.float64).ravel()[self._perm], z, self._part)
+        out = np.empty(self.N)
+        out[self._perm] = z
+        return out
 
     def solve(self, b: np.ndarray, x0: np.ndarray | None = None, atol: float = 0.0) -> tuple:
         """Solve A phi = b (b of shape (nx,ny,nz)); returns (phi, SolveInfo).
@@ -1015,7 +1104,7 @@ class MGPressureSolver:
         if not self._ready:
             return np.full(self.grid.shape, np.nan), SolveInfo(0, np.inf, False, False, 0.0)
         bv, xv, r, z, p, q = self._vec
-        bv[:] = np.ravel(b)
+        np.take(np.ravel(b), self._perm, out=bv)  # to the solver's storage order
         compat = 0.0
         if self.singular:
             compat = float(bv.mean())
@@ -1024,12 +1113,13 @@ class MGPressureSolver:
         if x0 is None:
             xv[:] = 0.0
         else:
-            xv[:] = np.ravel(x0)
+            np.take(np.ravel(x0), self._perm, out=xv)
         its, rel = _pcg(self._LV, self._LF, self._AOFF, self._AXI, self._AXF, self._cE, self._cN, self._cT,
                         self._dg, *self._v, self._dense, self._xl, self._bl, self._rl, self._t1, self._t2, self._dw,
                         self._qw, self.nu, self.chebyshev, 2.0 / self.cheb_ratio, self.singular, self.tol,
                         self.maxiter, bv, xv, r, z, p, q, self._part, self._ones, float(atol) * self._vol)
-        x = xv.copy()
+        x = np.empty(self.N)
+        x[self._perm] = xv  # back to C order
         if self.singular:
             x -= x.mean()
         bnorm = float(np.sqrt(np.dot(bv, bv))) / self._vol

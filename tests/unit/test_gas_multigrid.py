@@ -163,8 +163,8 @@ def test_hierarchy_handles_odd_sizes_and_rediscretises():
     for l in range(len(mg.levels)):
         nx, ny, nz, off = lv[l]
         H = 1.0 / nx
-        cT = mg._cT[off:off + nx * ny * nz].reshape(nx, ny, nz)
-        dZ = mg._dZ[off:off + nx * ny * nz].reshape(nx, ny, nz)
+        cT = mg.level_array("cT", l)
+        dZ = mg.level_array("dZ", l)
         np.testing.assert_allclose(cT[:, :, :-1], 0.7 * H, rtol=1e-13)  # a H^2 / H
         assert np.all(cT[:, :, -1] == 0.0)
         np.testing.assert_allclose(dZ[:, :, 0], 0.7 * H * H / (H / 2), rtol=1e-13)  # Dirichlet: a A / (H/2)
