@@ -93,6 +93,7 @@ __all__ = [
 LOCATIONS = ("ccc", "fcc", "cfc", "ccf")
 FACE_LOCATIONS = ("fcc", "cfc", "ccf")
 _FORCE_BLOCK = 512  # particles per block of the thread-independent force sums
+_Z_CHUNKS = 16  # z chunks of the parallel deposits (fixed: the sums do not depend on the thread count)
 
 
 class GridSpec(NamedTuple):
@@ -340,15 +341,6 @@ def _interp_kernel(a0, a1, w0, w1, field, out):
 
 
 @kernel(inline="always")
-def _aw(x, fpar, ipar, loc, a):
-    """Nodes i0, i1 and weights w0, w1 of location ``loc`` along axis ``a`` at coordinate x."""
-    b, i0, i1, v0, v1 = _axis_weights(x, fpar[loc, a, 0], fpar[loc, a, 1], ipar[loc, a, 0], ipar[loc, a, 1],
-                                      ipar[loc, a, 2], ipar[loc, a, 3], ipar[loc, a, 4], fpar[loc, a, 2],
-                                      fpar[loc, a, 3])
-    return i0, i1, v0, v1
-
-
-@kernel(inline="always")
 def _i8(i0, i1, j0, j1, k0, k1, wx0, wx1, wy0, wy1, wz0, wz1, field):
     """sum over the 8 corners of (wx wy wz) field[node], in the order and with the
     arithmetic of :func:`_interp_at` (bit-identical results)."""
@@ -366,71 +358,194 @@ def _i8(i0, i1, j0, j1, k0, k1, wx0, wx1, wy0, wy1, wz0, wz1, field):
 
 
 @kernel(inline="always")
-def _face_interp(pos, p, fpar, ipar, live, u, v, w):
-    """(I_fcc(u), I_cfc(v), I_ccf(w)) at particle p (0 for a dead face grid)."""
-    cx0, cx1, vx0, vx1 = _aw(pos[p, 0], fpar, ipar, 0, 0)
-    cy0, cy1, vy0, vy1 = _aw(pos[p, 1], fpar, ipar, 0, 1)
-    cz0, cz1, vz0, vz1 = _aw(pos[p, 2], fpar, ipar, 0, 2)
+def _cw(idx, wf, p, a, face):
+    """Stored compact weights of particle p along axis a (face 0: the centre variant, 1: the
+    face variant of that axis): nodes i0, i1 and weights 1 - f, f (the numbers of
+    :func:`_axis_weights`, whose lower weight is computed as 1 - f as well)."""
+    j = 4 * a + 2 * face
+    f = wf[p, 2 * a + face]
+    return idx[p, j], idx[p, j + 1], 1.0 - f, f
+
+
+@parallel_kernel
+def _compact_weights_kernel(pos, fpar, ipar, idx, wf):
+    """Per particle (each its own slot), for each axis a: ``idx[p, 4a:4a+4]`` = (centre i0,
+    centre i1, face i0, face i1) as int32 and ``wf[p, 2a:2a+2]`` = (centre f, face f), the
+    upper weights of :func:`_axis_weights` for the centre location and for the face location
+    normal to a (``fpar``/``ipar`` rows 0 and a + 1).  96 bytes per particle, written once
+    per coupling step and read by the porosity, slip, drag-deposit and force kernels.  The
+    axis parameters are read into locals outside the particle loop."""
+    x0c0 = fpar[0, 0, 0]; hc0 = fpar[0, 0, 1]; smic0 = fpar[0, 0, 2]; smac0 = fpar[0, 0, 3]
+    x0c1 = fpar[0, 1, 0]; hc1 = fpar[0, 1, 1]; smic1 = fpar[0, 1, 2]; smac1 = fpar[0, 1, 3]
+    x0c2 = fpar[0, 2, 0]; hc2 = fpar[0, 2, 1]; smic2 = fpar[0, 2, 2]; smac2 = fpar[0, 2, 3]
+    x0f0 = fpar[1, 0, 0]; hf0 = fpar[1, 0, 1]; smif0 = fpar[1, 0, 2]; smaf0 = fpar[1, 0, 3]
+    x0f1 = fpar[2, 1, 0]; hf1 = fpar[2, 1, 1]; smif1 = fpar[2, 1, 2]; smaf1 = fpar[2, 1, 3]
+    x0f2 = fpar[3, 2, 0]; hf2 = fpar[3, 2, 1]; smif2 = fpar[3, 2, 2]; smaf2 = fpar[3, 2, 3]
+    nc0 = ipar[0, 0, 0]; pc0 = ipar[0, 0, 1]; loc0 = ipar[0, 0, 2]; hic0 = ipar[0, 0, 3]; bc0 = ipar[0, 0, 4]
+    nc1 = ipar[0, 1, 0]; pc1 = ipar[0, 1, 1]; loc1 = ipar[0, 1, 2]; hic1 = ipar[0, 1, 3]; bc1 = ipar[0, 1, 4]
+    nc2 = ipar[0, 2, 0]; pc2 = ipar[0, 2, 1]; loc2 = ipar[0, 2, 2]; hic2 = ipar[0, 2, 3]; bc2 = ipar[0, 2, 4]
+    nf0 = ipar[1, 0, 0]; pf0 = ipar[1, 0, 1]; lof0 = ipar[1, 0, 2]; hif0 = ipar[1, 0, 3]; bf0 = ipar[1, 0, 4]
+    nf1 = ipar[2, 1, 0]; pf1 = ipar[2, 1, 1]; lof1 = ipar[2, 1, 2]; hif1 = ipar[2, 1, 3]; bf1 = ipar[2, 1, 4]
+    nf2 = ipar[3, 2, 0]; pf2 = ipar[3, 2, 1]; lof2 = ipar[3, 2, 2]; hif2 = ipar[3, 2, 3]; bf2 = ipar[3, 2, 4]
+    for p in prange(pos.shape[0]):
+        x = pos[p, 0]
+        b, i0, i1, v0, v1 = _axis_weights(x, x0c0, hc0, nc0, pc0, loc0, hic0, bc0, smic0, smac0)
+        b, j0, j1, u0, u1 = _axis_weights(x, x0f0, hf0, nf0, pf0, lof0, hif0, bf0, smif0, smaf0)
+        idx[p, 0] = i0
+        idx[p, 1] = i1
+        idx[p, 2] = j0
+        idx[p, 3] = j1
+        wf[p, 0] = v1
+        wf[p, 1] = u1
+        x = pos[p, 1]
+        b, i0, i1, v0, v1 = _axis_weights(x, x0c1, hc1, nc1, pc1, loc1, hic1, bc1, smic1, smac1)
+        b, j0, j1, u0, u1 = _axis_weights(x, x0f1, hf1, nf1, pf1, lof1, hif1, bf1, smif1, smaf1)
+        idx[p, 4] = i0
+        idx[p, 5] = i1
+        idx[p, 6] = j0
+        idx[p, 7] = j1
+        wf[p, 2] = v1
+        wf[p, 3] = u1
+        x = pos[p, 2]
+        b, i0, i1, v0, v1 = _axis_weights(x, x0c2, hc2, nc2, pc2, loc2, hic2, bc2, smic2, smac2)
+        b, j0, j1, u0, u1 = _axis_weights(x, x0f2, hf2, nf2, pf2, lof2, hif2, bf2, smif2, smaf2)
+        idx[p, 8] = i0
+        idx[p, 9] = i1
+        idx[p, 10] = j0
+        idx[p, 11] = j1
+        wf[p, 4] = v1
+        wf[p, 5] = u1
+    return 0
+
+
+@kernel
+def _chunk_sort_kernel(idx, col, nnodes, count, nstart, pstart, fill, perm):
+    """Split the nodes 0..nnodes-1 along z into ``nb = nstart.shape[0] - 1`` chunks of
+    consecutive nodes (each at least one node wide), about equally many particles each, the
+    particle's chunk being that of its lower z node ``idx[p, col]``; ``nstart[b]`` = first
+    node of chunk b, ``pstart[b]`` = its first slot in ``perm``, which lists the particles
+    chunk by chunk in index order (a stable counting sort).  Serial; depends on the
+    positions and the grid only (not on the thread count).  A particle of chunk b writes to
+    z nodes in [nstart[b], nstart[b+1]] (its upper node is its lower node + 1, the same node
+    at a wall fold, or node 0 after the periodic wrap of the last node), so chunks of equal
+    parity never share a node when nb is even (the wrap reaches chunk 0 from the odd chunk
+    nb - 1) or nb is 1."""
+    n = idx.shape[0]
+    nb = nstart.shape[0] - 1
+    for t in range(nnodes):
+        count[t] = 0
+    for p in range(n):
+        count[idx[p, col]] += 1
+    nstart[0] = 0
+    node = 0
+    cum = 0
+    for b in range(nb - 1):
+        target = (b + 1) * n / nb
+        # at least one node per chunk, and one left for each later chunk
+        cum += count[node]
+        node += 1
+        while node < nnodes - (nb - 1 - b) and cum + count[node] <= target:
+            cum += count[node]
+            node += 1
+        nstart[b + 1] = node
+    nstart[nb] = nnodes
+    # chunk of each node (reuse count as the map after taking the particle counts per chunk)
+    for b in range(nb + 1):
+        pstart[b] = 0
+    for b in range(nb):
+        s = 0
+        for t in range(nstart[b], nstart[b + 1]):
+            s += count[t]
+            count[t] = b
+        pstart[b + 1] = s
+    for b in range(nb):
+        pstart[b + 1] += pstart[b]
+    # stable placement: slot counters (``fill``, nb entries of scratch) start at pstart
+    for b in range(nb):
+        fill[b] = pstart[b]
+    for p in range(n):
+        b = count[idx[p, col]]
+        perm[fill[b]] = p
+        fill[b] += 1
+    return 0
+
+
+@kernel(inline="always")
+def _face_interp(idx, wf, p, live, u, v, w):
+    """(I_fcc(u), I_cfc(v), I_ccf(w)) at particle p from the stored weights (0 for a dead
+    face grid)."""
+    cx0, cx1, vx0, vx1 = _cw(idx, wf, p, 0, 0)
+    cy0, cy1, vy0, vy1 = _cw(idx, wf, p, 1, 0)
+    cz0, cz1, vz0, vz1 = _cw(idx, wf, p, 2, 0)
     ua = 0.0
     va = 0.0
     wa = 0.0
     if live[0] == 1:
-        f0, f1, u0, u1 = _aw(pos[p, 0], fpar, ipar, 1, 0)
+        f0, f1, u0, u1 = _cw(idx, wf, p, 0, 1)
         ua = _i8(f0, f1, cy0, cy1, cz0, cz1, u0, u1, vy0, vy1, vz0, vz1, u)
     if live[1] == 1:
-        f0, f1, u0, u1 = _aw(pos[p, 1], fpar, ipar, 2, 1)
+        f0, f1, u0, u1 = _cw(idx, wf, p, 1, 1)
         va = _i8(cx0, cx1, f0, f1, cz0, cz1, vx0, vx1, u0, u1, vz0, vz1, v)
     if live[2] == 1:
-        f0, f1, u0, u1 = _aw(pos[p, 2], fpar, ipar, 3, 2)
+        f0, f1, u0, u1 = _cw(idx, wf, p, 2, 1)
         wa = _i8(cx0, cx1, cy0, cy1, f0, f1, vx0, vx1, vy0, vy1, u0, u1, w)
     return ua, va, wa
 
 
-@kernel
-def _porosity_kernel(pos, fpar, ipar, vol, lo, hi, wall, solid):
-    """solid[c] += w_pc vol[p] on the centre grid, serial over particles in index order (the
-    sums of :func:`_scatter_kernel`); returns the number of particle centres outside
-    [lo, hi] on a wall axis (``wall[a]`` = 1)."""
-    n_out = 0
-    for p in range(pos.shape[0]):
-        i0, i1, wx0, wx1 = _aw(pos[p, 0], fpar, ipar, 0, 0)
-        j0, j1, wy0, wy1 = _aw(pos[p, 1], fpar, ipar, 0, 1)
-        k0, k1, wz0, wz1 = _aw(pos[p, 2], fpar, ipar, 0, 2)
-        out = False
-        for a in range(3):
-            if wall[a] == 1 and (pos[p, a] < lo[a] or pos[p, a] > hi[a]):
-                out = True
-        if out:
-            n_out += 1
-        val = vol[p]
-        for cx in range(2):
-            ix = i0 if cx == 0 else i1
-            wx = wx0 if cx == 0 else wx1
-            for cy in range(2):
-                iy = j0 if cy == 0 else j1
-                wxy = wx * (wy0 if cy == 0 else wy1)
-                for cz in range(2):
-                    iz = k0 if cz == 0 else k1
-                    solid[ix, iy, iz] += wxy * (wz0 if cz == 0 else wz1) * val
-    return n_out
+@parallel_kernel
+def _porosity_chunks_kernel(parity, pstart, perm, idx, wf, pos, vol, lo, hi, wall, solid, nout):
+    """solid[c] += w_pc vol[p] on the centre grid for the particles of the z chunks of the
+    given parity (:func:`_chunk_sort_kernel` on the centre z node), one chunk per prange
+    index, its particles in index order; ``nout[b]``: particle centres of chunk b outside
+    [lo, hi] on a wall axis (``wall[a]`` = 1).  Called for parity 0, then 1: chunks of one
+    parity touch disjoint nodes, so the sums are race-free and, the chunks depending on the
+    positions only, the same for any thread count."""
+    nb = pstart.shape[0] - 1
+    nq = (nb - parity + 1) // 2
+    for q in prange(nq):
+        b = 2 * q + parity
+        n_out = 0
+        for t in range(pstart[b], pstart[b + 1]):
+            p = perm[t]
+            i0, i1, wx0, wx1 = _cw(idx, wf, p, 0, 0)
+            j0, j1, wy0, wy1 = _cw(idx, wf, p, 1, 0)
+            k0, k1, wz0, wz1 = _cw(idx, wf, p, 2, 0)
+            out = False
+            for a in range(3):
+                if wall[a] == 1 and (pos[p, a] < lo[a] or pos[p, a] > hi[a]):
+                    out = True
+            if out:
+                n_out += 1
+            val = vol[p]
+            for cx in range(2):
+                ix = i0 if cx == 0 else i1
+                wx = wx0 if cx == 0 else wx1
+                for cy in range(2):
+                    iy = j0 if cy == 0 else j1
+                    wxy = wx * (wy0 if cy == 0 else wy1)
+                    for cz in range(2):
+                        iz = k0 if cz == 0 else k1
+                        solid[ix, iy, iz] += wxy * (wz0 if cz == 0 else wz1) * val
+        nout[b] = n_out
+    return 0
 
 
 @parallel_kernel
-def _slip_kernel(pos, fpar, ipar, live, eps, u, v, w, vel, diam, rho, mu, eps_a, re):
+def _slip_kernel(idx, wf, live, eps, u, v, w, vel, diam, rho, mu, eps_a, re):
     """Per particle (each its own slot): eps_a = clip(I_ccc(eps), 1e-12, 1), u_a from the face
     grids, Re = eps_a rho |u_a - v_a| d / mu.  (The drag closure is applied afterwards by
     numpy: its SIMD pow/expm1 on 30k values took 0.75 ms against 1.9 ms for the compiled
     scalar twin called here, measured on the chute.)"""
-    for p in prange(pos.shape[0]):
-        i0, i1, wx0, wx1 = _aw(pos[p, 0], fpar, ipar, 0, 0)
-        j0, j1, wy0, wy1 = _aw(pos[p, 1], fpar, ipar, 0, 1)
-        k0, k1, wz0, wz1 = _aw(pos[p, 2], fpar, ipar, 0, 2)
+    for p in prange(idx.shape[0]):
+        i0, i1, wx0, wx1 = _cw(idx, wf, p, 0, 0)
+        j0, j1, wy0, wy1 = _cw(idx, wf, p, 1, 0)
+        k0, k1, wz0, wz1 = _cw(idx, wf, p, 2, 0)
         e = _i8(i0, i1, j0, j1, k0, k1, wx0, wx1, wy0, wy1, wz0, wz1, eps)
         if e < 1e-12:
             e = 1e-12
         if e > 1.0:
             e = 1.0
-        ua, va, wa = _face_interp(pos, p, fpar, ipar, live, u, v, w)
+        ua, va, wa = _face_interp(idx, wf, p, live, u, v, w)
         d0 = ua - vel[p, 0]
         d1 = va - vel[p, 1]
         d2 = wa - vel[p, 2]
@@ -441,42 +556,45 @@ def _slip_kernel(pos, fpar, ipar, live, eps, u, v, w, vel, diam, rho, mu, eps_a,
     return 0
 
 
-@kernel
-def _deposit_drag_kernel(pos, fpar, ipar, live, keff, vel, ox, oy, oz):
-    """o_c[t, 0] += w_pt K[p], o_c[t, 1] += w_pt (K[p] vel[p, c]) on face grid c (c = x, y, z;
-    node arrays with a trailing pair axis, so that both sums of a node share a cache line;
-    skipped where ``live[c]`` is 0): one serial pass over the particles in index order, each
-    node receiving its sums in the order of :func:`_scatter_kernel`."""
-    for p in range(pos.shape[0]):
-        cx0, cx1, vx0, vx1 = _aw(pos[p, 0], fpar, ipar, 0, 0)
-        cy0, cy1, vy0, vy1 = _aw(pos[p, 1], fpar, ipar, 0, 1)
-        cz0, cz1, vz0, vz1 = _aw(pos[p, 2], fpar, ipar, 0, 2)
-        k = keff[p]
-        for comp in range(3):
-            if live[comp] == 0:
-                continue
-            f0, f1, u0, u1 = _aw(pos[p, comp], fpar, ipar, comp + 1, comp)
-            i0, i1, wx0, wx1 = (f0, f1, u0, u1) if comp == 0 else (cx0, cx1, vx0, vx1)
-            j0, j1, wy0, wy1 = (f0, f1, u0, u1) if comp == 1 else (cy0, cy1, vy0, vy1)
-            k0, k1, wz0, wz1 = (f0, f1, u0, u1) if comp == 2 else (cz0, cz1, vz0, vz1)
-            kv = k * vel[p, comp]
-            o = ox if comp == 0 else (oy if comp == 1 else oz)
-            for cx in range(2):
-                ix = i0 if cx == 0 else i1
-                wx = wx0 if cx == 0 else wx1
-                for cy in range(2):
-                    iy = j0 if cy == 0 else j1
-                    wxy = wx * (wy0 if cy == 0 else wy1)
-                    for cz in range(2):
-                        iz = k0 if cz == 0 else k1
-                        wc = wxy * (wz0 if cz == 0 else wz1)
-                        o[ix, iy, iz, 0] += wc * k
-                        o[ix, iy, iz, 1] += wc * kv
+@parallel_kernel
+def _deposit_drag_chunks_kernel(parity, pstart, perm, idx, wf, live, c_first, c_last, keff, vel, ox, oy, oz):
+    """o_c[t, 0] += w_pt K[p], o_c[t, 1] += w_pt (K[p] vel[p, c]) on face grid c for
+    c_first <= c <= c_last (skipped where ``live[c]`` is 0; node arrays with a trailing pair
+    axis, so that both sums of a node share a cache line), for the particles of the z chunks
+    of the given parity: the x- and y-face grids share the centre z nodes (chunks of the
+    centre sort), the z-face grid has its own (chunks of the face sort).  Race-free and
+    thread-independent as :func:`_porosity_chunks_kernel`."""
+    nb = pstart.shape[0] - 1
+    nq = (nb - parity + 1) // 2
+    for q in prange(nq):
+        b = 2 * q + parity
+        for t in range(pstart[b], pstart[b + 1]):
+            p = perm[t]
+            k = keff[p]
+            for comp in range(c_first, c_last + 1):
+                if live[comp] == 0:
+                    continue
+                i0, i1, wx0, wx1 = _cw(idx, wf, p, 0, 1 if comp == 0 else 0)
+                j0, j1, wy0, wy1 = _cw(idx, wf, p, 1, 1 if comp == 1 else 0)
+                k0, k1, wz0, wz1 = _cw(idx, wf, p, 2, 1 if comp == 2 else 0)
+                kv = k * vel[p, comp]
+                o = ox if comp == 0 else (oy if comp == 1 else oz)
+                for cx in range(2):
+                    ix = i0 if cx == 0 else i1
+                    wx = wx0 if cx == 0 else wx1
+                    for cy in range(2):
+                        iy = j0 if cy == 0 else j1
+                        wxy = wx * (wy0 if cy == 0 else wy1)
+                        for cz in range(2):
+                            iz = k0 if cz == 0 else k1
+                            wc = wxy * (wz0 if cz == 0 else wz1)
+                            o[ix, iy, iz, 0] += wc * k
+                            o[ix, iy, iz, 1] += wc * kv
     return 0
 
 
 @parallel_kernel
-def _forces_kernel(pos, fpar, ipar, live, u, v, w, G, B, has_b, vel, keff, vol, store,
+def _forces_kernel(idx, wf, live, u, v, w, G, B, has_b, vel, keff, vol, store,
                    fd, fp, fb, ext, power, fmag, chunk, part):
     """Per particle: drag fd = K (u_a - v_a) with u_a from the face grids, pressure forces
     fp_c = -V I_ccc(G[..., c]), fb_c = -V I_ccc(B[..., c]) (0 where has_b[c] is 0; B[..., c] is
@@ -490,17 +608,17 @@ def _forces_kernel(pos, fpar, ipar, live, u, v, w, G, B, has_b, vel, keff, vol, 
     nb0 = G.shape[0] - 1
     nb1 = G.shape[1] - 1
     nb2 = G.shape[2] - 1
-    n = pos.shape[0]
+    n = idx.shape[0]
     nblk = part.shape[0]
     for b in prange(nblk):
         sf0 = sf1 = sf2 = sp0 = sp1 = sp2 = sb0 = sb1 = sb2 = spw = 0.0
         fmax = 0.0
         p_end = min(n, (b + 1) * chunk)
         for p in range(b * chunk, p_end):
-            ua, va, wa = _face_interp(pos, p, fpar, ipar, live, u, v, w)
-            i0, i1, wx0, wx1 = _aw(pos[p, 0], fpar, ipar, 0, 0)
-            j0, j1, wy0, wy1 = _aw(pos[p, 1], fpar, ipar, 0, 1)
-            k0, k1, wz0, wz1 = _aw(pos[p, 2], fpar, ipar, 0, 2)
+            ua, va, wa = _face_interp(idx, wf, p, live, u, v, w)
+            i0, i1, wx0, wx1 = _cw(idx, wf, p, 0, 0)
+            j0, j1, wy0, wy1 = _cw(idx, wf, p, 1, 0)
+            k0, k1, wz0, wz1 = _cw(idx, wf, p, 2, 0)
             s0 = 0.0
             s1 = 0.0
             s2 = 0.0
@@ -642,6 +760,8 @@ class MappingPlan:
         self.pos = _positions(pos)
         self.periodic = _periodic(periodic)
         self._w = {}
+        self._cw = None  # compact weights (idx, wf), computed on first use
+        self._sorted = {}  # z-chunk sorts of the particles, per column of idx
         # arrays kept by the caller between plans (a coupling step builds one plan per step):
         # first-touch page faults of fresh multi-megabyte arrays cost more than the kernels
         self._ws = workspace if workspace is not None else {}
@@ -723,6 +843,41 @@ class MappingPlan:
         self._ws["_params"] = (key, val)
         return val
 
+    def _compact(self):
+        """Compact weights of the fused kernels, computed once per plan in one parallel pass
+        (:func:`_compact_weights_kernel`): ``idx (n, 12)`` int32 and ``wf (n, 6)``
+        (workspace arrays)."""
+        if self._cw is None:
+            idx = self._buf("cw_idx", (self.n, 12), np.int32)
+            wf = self._buf("cw_wf", (self.n, 6))
+            if self.n:
+                fpar, ipar, _ = self._params()
+                _compact_weights_kernel(self.pos, fpar, ipar, idx, wf)
+            self._cw = (idx, wf)
+        return self._cw
+
+    def _chunks(self, face):
+        """``(pstart, perm)`` of the z-chunk sort (:func:`_chunk_sort_kernel`) by the lower
+        centre z node (``face`` 0) or the lower z-face node (1).  The number of chunks depends
+        on the grid only: ``min(16, distinct nodes along z)`` rounded down to an even number (1 if
+        that is below 2), so the deposits are the same for any thread count."""
+        got = self._sorted.get(face)
+        if got is None:
+            idx, _ = self._compact()
+            # distinct z nodes: a periodic face grid's node n is node 0 (never written)
+            nnodes = self.spec.shape[2] + (face if not self.periodic[2] else 0)
+            nb = min(_Z_CHUNKS, nnodes) // 2 * 2
+            if nb < 2:
+                nb = 1
+            count = self._buf("cs_count%d" % face, (nnodes,), np.int64)
+            nstart = self._buf("cs_nstart%d" % face, (nb + 1,), np.int64)
+            pstart = self._buf("cs_pstart%d" % face, (nb + 1,), np.int64)
+            fill = self._buf("cs_fill%d" % face, (nb,), np.int64)
+            perm = self._buf("cs_perm%d" % face, (self.n,), np.int64)
+            _chunk_sort_kernel(idx, 8 + 2 * face, nnodes, count, nstart, pstart, fill, perm)
+            got = self._sorted[face] = (pstart, perm)
+        return got
+
     def porosity(self, radius, eps_min=0.3, volume=None) -> "PorosityResult":
         """See :func:`porosity`.  ``volume``: the particle volumes if already computed (they
         must be ``4/3 pi radius^3``); one serial pass deposits them and counts the particle
@@ -736,11 +891,15 @@ class MappingPlan:
         solid = np.zeros(spec.shape)
         n_out = 0
         if self.n:
-            fpar, ipar, _ = self._params()
+            idx, wf = self._compact()
+            pstart, perm = self._chunks(0)
             lo = np.array(spec.origin, dtype=np.float64)
             hi = np.array([spec.origin[a] + spec.shape[a] * spec.spacing[a] for a in range(3)])
             wall = np.array([0 if per[a] else 1 for a in range(3)], np.int64)
-            n_out = int(_porosity_kernel(self.pos, fpar, ipar, vol, lo, hi, wall, solid))
+            nout = np.zeros(pstart.shape[0] - 1, np.int64)
+            for parity in (0, 1):
+                _porosity_chunks_kernel(parity, pstart, perm, idx, wf, self.pos, vol, lo, hi, wall, solid, nout)
+            n_out = int(nout.sum())
         eps = 1.0 - solid / spec.cell_volume
         k = int(np.argmin(eps))
         where = tuple(int(v) for v in np.unravel_index(k, eps.shape))
@@ -807,8 +966,9 @@ class MappingPlan:
         eps_a = self._buf("eps_a", (self.n,))
         re = self._buf("re", (self.n,))
         if self.n:
-            fpar, ipar, live = self._params()
-            _slip_kernel(self.pos, fpar, ipar, live, eps, fu, fv, fw, vel, d, float(rho), float(mu), eps_a, re)
+            _, _, live = self._params()
+            idx, wf = self._compact()
+            _slip_kernel(idx, wf, live, eps, fu, fv, fw, vel, d, float(rho), float(mu), eps_a, re)
         return eps_a, re
 
     def deposit_drag(self, keff, vel):
@@ -829,8 +989,12 @@ class MappingPlan:
         vel = self._vel(vel)
         pairs = tuple(self._buf("dkp" + loc, node_shape(self.spec, loc) + (2,), zero=True) for loc in FACE_LOCATIONS)
         if self.n:
-            fpar, ipar, live = self._params()
-            _deposit_drag_kernel(self.pos, fpar, ipar, live, k, vel, *pairs)
+            _, _, live = self._params()
+            idx, wf = self._compact()
+            for face, (c0, c1) in ((0, (0, 1)), (1, (2, 2))):  # x, y faces: centre z nodes; z faces
+                pstart, perm = self._chunks(face)
+                for parity in (0, 1):
+                    _deposit_drag_chunks_kernel(parity, pstart, perm, idx, wf, live, c0, c1, k, vel, *pairs)
         return pairs
 
     def _stacked(self, fields, key):
@@ -871,8 +1035,9 @@ class MappingPlan:
         nblk = (n + _FORCE_BLOCK - 1) // _FORCE_BLOCK
         part = self._buf("force_sums", (nblk, 11))
         if n:
-            fpar, ipar, live = self._params()
-            _forces_kernel(self.pos, fpar, ipar, live, fu, fv, fw, G, B, has_b, vel, k, vol, 1 if store else 0,
+            _, _, live = self._params()
+            idx, wf = self._compact()
+            _forces_kernel(idx, wf, live, fu, fv, fw, G, B, has_b, vel, k, vol, 1 if store else 0,
                            res["fd"], res["fp"], res["fb"], out, res["power"], res["magnitude"], _FORCE_BLOCK, part)
         return res, part
 
