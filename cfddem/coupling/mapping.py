@@ -418,24 +418,11 @@ def _compact_weights_kernel(pos, fpar, ipar, idx, wf):
     return 0
 
 
-@kernel
-def _chunk_sort_kernel(idx, col, nnodes, count, nstart, pstart, fill, perm):
-    """Split the nodes 0..nnodes-1 along z into ``nb = nstart.shape[0] - 1`` chunks of
-    consecutive nodes (each at least one node wide), about equally many particles each, the
-    particle's chunk being that of its lower z node ``idx[p, col]``; ``nstart[b]`` = first
-    node of chunk b, ``pstart[b]`` = its first slot in ``perm``, which lists the particles
-    chunk by chunk in index order (a stable counting sort).  Serial; depends on the
-    positions and the grid only (not on the thread count).  A particle of chunk b writes to
-    z nodes in [nstart[b], nstart[b+1]] (its upper node is its lower node + 1, the same node
-    at a wall fold, or node 0 after the periodic wrap of the last node), so chunks of equal
-    parity never share a node when nb is even (the wrap reaches chunk 0 from the odd chunk
-    nb - 1) or nb is 1."""
-    n = idx.shape[0]
+@kernel(inline="always")
+def _chunk_bounds(n, nnodes, count, nstart, pstart):
+    """From the particles per node ``count``: chunk boundaries ``nstart`` (nodes) and
+    ``pstart`` (slots), and ``count`` overwritten with the chunk of each node."""
     nb = nstart.shape[0] - 1
-    for t in range(nnodes):
-        count[t] = 0
-    for p in range(n):
-        count[idx[p, col]] += 1
     nstart[0] = 0
     node = 0
     cum = 0
@@ -449,24 +436,51 @@ def _chunk_sort_kernel(idx, col, nnodes, count, nstart, pstart, fill, perm):
             node += 1
         nstart[b + 1] = node
     nstart[nb] = nnodes
-    # chunk of each node (reuse count as the map after taking the particle counts per chunk)
-    for b in range(nb + 1):
-        pstart[b] = 0
+    pstart[0] = 0
     for b in range(nb):
         s = 0
         for t in range(nstart[b], nstart[b + 1]):
             s += count[t]
             count[t] = b
-        pstart[b + 1] = s
-    for b in range(nb):
-        pstart[b + 1] += pstart[b]
-    # stable placement: slot counters (``fill``, nb entries of scratch) start at pstart
-    for b in range(nb):
-        fill[b] = pstart[b]
+        pstart[b + 1] = pstart[b] + s
+
+
+@kernel
+def _chunk_sort_kernel(idx, nn0, nn1, count0, count1, nstart0, nstart1, pstart0, pstart1, fill0, fill1,
+                       perm0, perm1):
+    """Two sorts of the particles into z chunks, by the lower centre z node ``idx[p, 8]``
+    (suffix 0) and by the lower z-face node ``idx[p, 10]`` (suffix 1), in one serial pass
+    each for counting and placing.  Per sort: the ``nn`` distinct z nodes are split into
+    ``nb = nstart.shape[0] - 1`` chunks of consecutive nodes (each at least one node wide)
+    holding about equally many particles; ``nstart[b]`` = first node of chunk b,
+    ``pstart[b]`` = its first slot in ``perm``, which lists the particles chunk by chunk in
+    index order (a stable counting sort; ``count`` and ``fill`` are scratch).  The result
+    depends on the positions and the grid only, not on the thread count.  A particle of
+    chunk b writes to z nodes in [nstart[b], nstart[b+1]] (its upper node is its lower node
+    + 1, the same node at a wall fold, or node 0 after the periodic wrap of the last node),
+    so chunks of equal parity never share a node when nb is even (the wrap reaches chunk 0
+    from the odd chunk nb - 1) or nb is 1."""
+    n = idx.shape[0]
+    for t in range(nn0):
+        count0[t] = 0
+    for t in range(nn1):
+        count1[t] = 0
     for p in range(n):
-        b = count[idx[p, col]]
-        perm[fill[b]] = p
-        fill[b] += 1
+        count0[idx[p, 8]] += 1
+        count1[idx[p, 10]] += 1
+    _chunk_bounds(n, nn0, count0, nstart0, pstart0)
+    _chunk_bounds(n, nn1, count1, nstart1, pstart1)
+    for b in range(nstart0.shape[0] - 1):
+        fill0[b] = pstart0[b]
+    for b in range(nstart1.shape[0] - 1):
+        fill1[b] = pstart1[b]
+    for p in range(n):
+        b = count0[idx[p, 8]]
+        perm0[fill0[b]] = p
+        fill0[b] += 1
+        b = count1[idx[p, 10]]
+        perm1[fill1[b]] = p
+        fill1[b] += 1
     return 0
 
 
@@ -556,14 +570,31 @@ def _slip_kernel(idx, wf, live, eps, u, v, w, vel, diam, rho, mu, eps_a, re):
     return 0
 
 
+@kernel(inline="always")
+def _scatter_pair(i0, i1, j0, j1, k0, k1, wx0, wx1, wy0, wy1, wz0, wz1, k, kv, o):
+    """o[t, 0] += w_t k, o[t, 1] += w_t kv over the 8 corners (order and arithmetic of
+    :func:`_scatter_kernel`)."""
+    for cx in range(2):
+        ix = i0 if cx == 0 else i1
+        wx = wx0 if cx == 0 else wx1
+        for cy in range(2):
+            iy = j0 if cy == 0 else j1
+            wxy = wx * (wy0 if cy == 0 else wy1)
+            for cz in range(2):
+                iz = k0 if cz == 0 else k1
+                wc = wxy * (wz0 if cz == 0 else wz1)
+                o[ix, iy, iz, 0] += wc * k
+                o[ix, iy, iz, 1] += wc * kv
+
+
 @parallel_kernel
-def _deposit_drag_chunks_kernel(parity, pstart, perm, idx, wf, live, c_first, c_last, keff, vel, ox, oy, oz):
-    """o_c[t, 0] += w_pt K[p], o_c[t, 1] += w_pt (K[p] vel[p, c]) on face grid c for
-    c_first <= c <= c_last (skipped where ``live[c]`` is 0; node arrays with a trailing pair
-    axis, so that both sums of a node share a cache line), for the particles of the z chunks
-    of the given parity: the x- and y-face grids share the centre z nodes (chunks of the
-    centre sort), the z-face grid has its own (chunks of the face sort).  Race-free and
-    thread-independent as :func:`_porosity_chunks_kernel`."""
+def _deposit_drag_chunks_kernel(parity, pstart, perm, idx, wf, live, zface, keff, vel, ox, oy, oz):
+    """o_c[t, 0] += w_pt K[p], o_c[t, 1] += w_pt (K[p] vel[p, c]) on face grid c (skipped
+    where ``live[c]`` is 0; node arrays with a trailing pair axis, so that both sums of a
+    node share a cache line), for the particles of the z chunks of the given parity:
+    ``zface`` 0: the x- and y-face grids (they share the centre z nodes; chunks of the centre
+    sort), 1: the z-face grid (chunks of the face sort).  Race-free and thread-independent
+    as :func:`_porosity_chunks_kernel`."""
     nb = pstart.shape[0] - 1
     nq = (nb - parity + 1) // 2
     for q in prange(nq):
@@ -571,25 +602,19 @@ def _deposit_drag_chunks_kernel(parity, pstart, perm, idx, wf, live, c_first, c_
         for t in range(pstart[b], pstart[b + 1]):
             p = perm[t]
             k = keff[p]
-            for comp in range(c_first, c_last + 1):
-                if live[comp] == 0:
-                    continue
-                i0, i1, wx0, wx1 = _cw(idx, wf, p, 0, 1 if comp == 0 else 0)
-                j0, j1, wy0, wy1 = _cw(idx, wf, p, 1, 1 if comp == 1 else 0)
-                k0, k1, wz0, wz1 = _cw(idx, wf, p, 2, 1 if comp == 2 else 0)
-                kv = k * vel[p, comp]
-                o = ox if comp == 0 else (oy if comp == 1 else oz)
-                for cx in range(2):
-                    ix = i0 if cx == 0 else i1
-                    wx = wx0 if cx == 0 else wx1
-                    for cy in range(2):
-                        iy = j0 if cy == 0 else j1
-                        wxy = wx * (wy0 if cy == 0 else wy1)
-                        for cz in range(2):
-                            iz = k0 if cz == 0 else k1
-                            wc = wxy * (wz0 if cz == 0 else wz1)
-                            o[ix, iy, iz, 0] += wc * k
-                            o[ix, iy, iz, 1] += wc * kv
+            cx0, cx1, vx0, vx1 = _cw(idx, wf, p, 0, 0)
+            cy0, cy1, vy0, vy1 = _cw(idx, wf, p, 1, 0)
+            if zface == 0:
+                cz0, cz1, vz0, vz1 = _cw(idx, wf, p, 2, 0)
+                if live[0] == 1:
+                    f0, f1, u0, u1 = _cw(idx, wf, p, 0, 1)
+                    _scatter_pair(f0, f1, cy0, cy1, cz0, cz1, u0, u1, vy0, vy1, vz0, vz1, k, k * vel[p, 0], ox)
+                if live[1] == 1:
+                    f0, f1, u0, u1 = _cw(idx, wf, p, 1, 1)
+                    _scatter_pair(cx0, cx1, f0, f1, cz0, cz1, vx0, vx1, u0, u1, vz0, vz1, k, k * vel[p, 1], oy)
+            elif live[2] == 1:
+                f0, f1, u0, u1 = _cw(idx, wf, p, 2, 1)
+                _scatter_pair(cx0, cx1, cy0, cy1, f0, f1, vx0, vx1, vy0, vy1, u0, u1, k, k * vel[p, 2], oz)
     return 0
 
 
@@ -857,26 +882,29 @@ class MappingPlan:
         return self._cw
 
     def _chunks(self, face):
-        """``(pstart, perm)`` of the z-chunk sort (:func:`_chunk_sort_kernel`) by the lower
-        centre z node (``face`` 0) or the lower z-face node (1).  The number of chunks depends
-        on the grid only: ``min(16, distinct nodes along z)`` rounded down to an even number (1 if
-        that is below 2), so the deposits are the same for any thread count."""
-        got = self._sorted.get(face)
-        if got is None:
+        """``(pstart, perm)`` of the z-chunk sort (:func:`_chunk_sort_kernel`, both sorts in
+        one call) by the lower centre z node (``face`` 0) or the lower z-face node (1).  The
+        number of chunks depends on the grid only: ``min(16, distinct nodes along z)`` rounded
+        down to an even number (1 if that is below 2), so the deposits are the same for any
+        thread count."""
+        if not self._sorted:
             idx, _ = self._compact()
-            # distinct z nodes: a periodic face grid's node n is node 0 (never written)
-            nnodes = self.spec.shape[2] + (face if not self.periodic[2] else 0)
-            nb = min(_Z_CHUNKS, nnodes) // 2 * 2
-            if nb < 2:
-                nb = 1
-            count = self._buf("cs_count%d" % face, (nnodes,), np.int64)
-            nstart = self._buf("cs_nstart%d" % face, (nb + 1,), np.int64)
-            pstart = self._buf("cs_pstart%d" % face, (nb + 1,), np.int64)
-            fill = self._buf("cs_fill%d" % face, (nb,), np.int64)
-            perm = self._buf("cs_perm%d" % face, (self.n,), np.int64)
-            _chunk_sort_kernel(idx, 8 + 2 * face, nnodes, count, nstart, pstart, fill, perm)
-            got = self._sorted[face] = (pstart, perm)
-        return got
+            arrays = []
+            for f in (0, 1):
+                # distinct z nodes: a periodic face grid's node n is node 0 (never written)
+                nnodes = self.spec.shape[2] + (f if not self.periodic[2] else 0)
+                nb = min(_Z_CHUNKS, nnodes) // 2 * 2
+                if nb < 2:
+                    nb = 1
+                arrays.append((nnodes, self._buf("cs_count%d" % f, (nnodes,), np.int64),
+                               self._buf("cs_nstart%d" % f, (nb + 1,), np.int64),
+                               self._buf("cs_pstart%d" % f, (nb + 1,), np.int64),
+                               self._buf("cs_fill%d" % f, (nb,), np.int64),
+                               self._buf("cs_perm%d" % f, (self.n,), np.int64)))
+            a, b = arrays
+            _chunk_sort_kernel(idx, a[0], b[0], a[1], b[1], a[2], b[2], a[3], b[3], a[4], b[4], a[5], b[5])
+            self._sorted = {0: (a[3], a[5]), 1: (b[3], b[5])}
+        return self._sorted[face]
 
     def porosity(self, radius, eps_min=0.3, volume=None) -> "PorosityResult":
         """See :func:`porosity`.  ``volume``: the particle volumes if already computed (they
@@ -991,10 +1019,10 @@ class MappingPlan:
         if self.n:
             _, _, live = self._params()
             idx, wf = self._compact()
-            for face, (c0, c1) in ((0, (0, 1)), (1, (2, 2))):  # x, y faces: centre z nodes; z faces
+            for face in (0, 1):  # x and y faces: centre z nodes; z faces
                 pstart, perm = self._chunks(face)
                 for parity in (0, 1):
-                    _deposit_drag_chunks_kernel(parity, pstart, perm, idx, wf, live, c0, c1, k, vel, *pairs)
+                    _deposit_drag_chunks_kernel(parity, pstart, perm, idx, wf, live, face, k, vel, *pairs)
         return pairs
 
     def _stacked(self, fields, key):
