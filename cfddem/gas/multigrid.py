@@ -49,6 +49,13 @@ coarsest solve) and a valid CG preconditioner.  With an odd periodic axis the tw
 touch across the wrap; the sweeps then are ordinary Gauss-Seidel sweeps in the red-black
 order and the reverse order is still their adjoint.
 
+Storage: level l occupies cells off..off+nx*ny*nz of every level array, x planes and y rows
+in C order, but each z row stores its even k first, then its odd k (:func:`_pk`; red-black
+order), so that the cells of one colour in a row are contiguous and their z neighbours sit
+at fixed offsets: the smoother's interior loop is unit-stride and vectorises (1.8x per
+sweep, measured).  :meth:`MGPressureSolver.solve`, ``apply`` and ``vcycle`` take and return
+C-order arrays (permuted on entry and exit); ``storage_order`` gives the permutation.
+
 Threads (opt-in, ``par_min``; serial by default, see MGPressureSolver): on every level of at
 least ``par_min`` cells the smoother, the residual and
 the transfers run with the x planes in parallel (one ``prange`` per kernel), and so do the
@@ -82,7 +89,7 @@ SIDES = ("x-", "x+", "y-", "y+", "z-", "z+")
 
 
 # ------------------------------------------------------------------------------------------
-# compiled kernels: level l occupies cells off..off+nx*ny*nz of every level array, C order
+# compiled kernels: level l occupies cells off..off+nx*ny*nz of every level array (z rows red-black)
 # ------------------------------------------------------------------------------------------
 @kernel
 def _pk(k, n):
