@@ -88,7 +88,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cfddem._jit import kernel
+from cfddem._jit import kernel, parallel_kernel, prange
 from cfddem.coupling import drag as _drag
 from cfddem.coupling.mapping import MappingPlan
 from cfddem.errors import CaseError
@@ -116,7 +116,76 @@ def _face_grad(p, hw, c, i, j, k, f, lo, hi, dx):
 
 
 @kernel
-def _pressure_fields_kernel(p, e, hw, spacing, flo, fhi, per, blo, bhi, G, Gb, solid):
+def _pressure_layer(p, e, hw, spacing, flo, fhi, per, blo, bhi, G, Gb, i):
+    """Layer i of :func:`_pressure_fields_kernel`: G[i], Gb[i] and the layer's solid sums
+    (three components), in cell order."""
+    nx = G.shape[0]
+    ny = G.shape[1]
+    nz = G.shape[2]
+    s0 = 0.0
+    s1 = 0.0
+    s2 = 0.0
+    for j in range(ny):
+        for k in range(nz):
+            for c in range(3):
+                a = i if c == 0 else (j if c == 1 else k)
+                n = nx if c == 0 else (ny if c == 1 else nz)
+                lo = flo[c]
+                hi = fhi[c]
+                dx = spacing[c]
+                g0 = _face_grad(p, hw, c, i, j, k, a, lo, hi, dx)
+                if per[c] == 1 and a + 1 == n:
+                    g1 = _face_grad(p, hw, c, i, j, k, 0, lo, hi, dx)
+                else:
+                    g1 = _face_grad(p, hw, c, i, j, k, a + 1, lo, hi, dx)
+                val = 0.5 * (g0 + g1)
+                if per[c] == 0:
+                    if a == 0:
+                        val += 0.5 * g0
+                    if a == n - 1:
+                        val += 0.5 * g1
+                G[i, j, k, c] = val
+                b = 0.0
+                if blo[c] == 1 and a == 0:
+                    b += 0.5 * _face_grad(p, hw, c, i, j, k, 1, lo, hi, dx)
+                if bhi[c] == 1 and a == n - 1:
+                    b += 0.5 * _face_grad(p, hw, c, i, j, k, n - 1, lo, hi, dx)
+                Gb[i, j, k, c] = b
+                # solid part over the faces: the low face of every cell, and face n of the last
+                ii = hw + i
+                jj = hw + j
+                kk = hw + k
+                if c == 0:
+                    em = e[ii - 1, jj, kk]
+                elif c == 1:
+                    em = e[ii, jj - 1, kk]
+                else:
+                    em = e[ii, jj, kk - 1]
+                ef = 0.5 * (em + e[ii, jj, kk])
+                sc = (1.0 - ef) * g0
+                if a == n - 1:
+                    if c == 0:
+                        ep = e[ii + 1, jj, kk]
+                    elif c == 1:
+                        ep = e[ii, jj + 1, kk]
+                    else:
+                        ep = e[ii, jj, kk + 1]
+                    ef = 0.5 * (e[ii, jj, kk] + ep)
+                    sc += (1.0 - ef) * _face_grad(p, hw, c, i, j, k, n, lo, hi, dx)
+                if c == 0:
+                    s0 += sc
+                elif c == 1:
+                    s1 += sc
+                else:
+                    s2 += sc
+    return s0, s1, s2
+
+
+
+
+
+@parallel_kernel
+def _pressure_fields_kernel(p, e, hw, spacing, flo, fhi, per, blo, bhi, G, Gb, part, solid):
     """From the halo-filled pressure ``p`` and porosity ``e`` (halo width hw): for each component
     c the centre field ``G[..., c]`` (step 5a: (g_i + g_{i+1})/2, face n = face 0 on a periodic
     axis, the outer faces counted fully on a wall axis), the boundary half-cell field
@@ -124,62 +193,38 @@ def _pressure_fields_kernel(p, e, hw, spacing, flo, fhi, per, blo, bhi, G, Gb, s
     ``bhi[c]``, else 0) and ``solid[c] = sum_f (1 - eps_f) g_f`` over all faces (eps_f the
     arithmetic face mean of the halo-filled porosity).  The same operations, in the same
     order, as the numpy code of :meth:`CoupledGas._centre_from_faces` (bit-identical G, Gb);
-    ``solid`` is summed in cell order (round-off differences to ``np.sum``)."""
+    ``solid`` is summed per x-layer i in cell order into ``part[i]`` (nx, 3), the layers in
+    parallel (each its own slot), then over the layers in order: the same sums for any
+    thread count (round-off differences to ``np.sum``)."""
     nx = G.shape[0]
-    ny = G.shape[1]
-    nz = G.shape[2]
+    for i in prange(nx):
+        # (the prange index may be unsigned: mixed with signed indices it would type as float)
+        s0, s1, s2 = _pressure_layer(p, e, hw, spacing, flo, fhi, per, blo, bhi, G, Gb, np.int64(i))
+        part[i, 0] = s0
+        part[i, 1] = s1
+        part[i, 2] = s2
     for c in range(3):
         solid[c] = 0.0
     for i in range(nx):
-        for j in range(ny):
-            for k in range(nz):
-                for c in range(3):
-                    a = i if c == 0 else (j if c == 1 else k)
-                    n = nx if c == 0 else (ny if c == 1 else nz)
-                    lo = flo[c]
-                    hi = fhi[c]
-                    dx = spacing[c]
-                    g0 = _face_grad(p, hw, c, i, j, k, a, lo, hi, dx)
-                    if per[c] == 1 and a + 1 == n:
-                        g1 = _face_grad(p, hw, c, i, j, k, 0, lo, hi, dx)
-                    else:
-                        g1 = _face_grad(p, hw, c, i, j, k, a + 1, lo, hi, dx)
-                    val = 0.5 * (g0 + g1)
-                    if per[c] == 0:
-                        if a == 0:
-                            val += 0.5 * g0
-                        if a == n - 1:
-                            val += 0.5 * g1
-                    G[i, j, k, c] = val
-                    b = 0.0
-                    if blo[c] == 1 and a == 0:
-                        b += 0.5 * _face_grad(p, hw, c, i, j, k, 1, lo, hi, dx)
-                    if bhi[c] == 1 and a == n - 1:
-                        b += 0.5 * _face_grad(p, hw, c, i, j, k, n - 1, lo, hi, dx)
-                    Gb[i, j, k, c] = b
-                    # solid part over the faces: the low face of every cell, and face n of the last
-                    ii = hw + i
-                    jj = hw + j
-                    kk = hw + k
-                    if c == 0:
-                        em = e[ii - 1, jj, kk]
-                    elif c == 1:
-                        em = e[ii, jj - 1, kk]
-                    else:
-                        em = e[ii, jj, kk - 1]
-                    ef = 0.5 * (em + e[ii, jj, kk])
-                    solid[c] += (1.0 - ef) * g0
-                    if a == n - 1:
-                        if c == 0:
-                            ep = e[ii + 1, jj, kk]
-                        elif c == 1:
-                            ep = e[ii, jj + 1, kk]
-                        else:
-                            ep = e[ii, jj, kk + 1]
-                        ef = 0.5 * (e[ii, jj, kk] + ep)
-                        solid[c] += (1.0 - ef) * _face_grad(p, hw, c, i, j, k, n, lo, hi, dx)
+        for c in range(3):
+            solid[c] += part[i, c]
     return 0
 
+
+@parallel_kernel
+def _keff_kernel(F, eps_a, d, mass, c3, dtg, implicit, keff):
+    """Drag coefficient per particle (step 2), each particle its own slot:
+    ``K = c3 d eps_a F`` with ``c3 = 3 pi mu``; ``keff = -m expm1(-dt_g K/m)/dt_g`` if
+    ``implicit`` is 1, else K (the numpy expressions of the step, evaluated in the same
+    order)."""
+    for p in prange(keff.shape[0]):
+        K = c3 * d[p] * eps_a[p] * F[p]
+        if implicit == 1:
+            m = mass[p]
+            keff[p] = -m * np.expm1(-dtg * K / m) / dtg
+        else:
+            keff[p] = K
+    return 0
 
 
 @kernel
@@ -427,14 +472,13 @@ class CoupledGas:
             # inside the kernel (0.75 against 1.9 ms on the 30k chute)
             eps_a, re = plan.interpolate_slip(eps, gas.u.interior, gas.v.interior, gas.w.interior, vel, d,
                                               self.rho, self.mu)
-            K = 3.0 * np.pi * self.mu * d * eps_a * np.asarray(self._F(eps_a, re), dtype=float)
-            if self.drag_treatment == "implicit":
-                Keff = -mass * np.expm1(-dtg * K / mass) / dtg
-            else:
-                Keff = K
+            F = np.ascontiguousarray(self._F(eps_a, re), dtype=np.float64)
+            Keff = self._work("_Keff", (n,))
+            _keff_kernel(F, eps_a, d, mass, 3.0 * np.pi * self.mu, dtg, 1 if self.drag_treatment == "implicit" else 0,
+                         Keff)
             pairs = plan.deposit_drag_pairs(Keff, vel)  # (D(K_eff), D(K_eff v_c)) per face grid
-            drag_K = tuple(np.empty(a.shape[:3]) for a in pairs)
-            drag_Up = tuple(np.empty(a.shape[:3]) for a in pairs)
+            drag_K = tuple(self._work("_dK" + loc, a.shape[:3]) for loc, a in zip(_LOC, pairs))
+            drag_Up = tuple(self._work("_dUp" + loc, a.shape[:3]) for loc, a in zip(_LOC, pairs))
             for c in range(3):  # K = D(K_eff)/V_cell, Up = D(K_eff v)/D(K_eff) (0 where D(K_eff) = 0)
                 _drag_grid_kernel(pairs[c].reshape(-1, 2), vc, drag_K[c].reshape(-1), drag_Up[c].reshape(-1))
         else:
@@ -493,6 +537,14 @@ class CoupledGas:
             self.log.warning("gas time step dt_g = %.3g s exceeds the gas's stable step %.3g s (CFL %.3g)",
                              dtg, gas.max_stable_dt(), info.cfl)
         return None
+
+    def _work(self, key, shape):
+        """A work array kept between coupling steps (reused when the shape matches; first
+        touches of fresh arrays cost page faults every step)."""
+        arr = self._ws.get(key)
+        if arr is None or arr.shape != tuple(shape):
+            arr = self._ws[key] = np.empty(shape)
+        return arr
 
     def set_superficial_inlet(self, side: str, U: float) -> None:
         """Prescribe the superficial velocity U [m/s] (into the box) on an Inlet side."""
@@ -628,7 +680,10 @@ class CoupledGas:
         solid = np.empty(3)
         p = np.ascontiguousarray(gas.p.data, dtype=np.float64)
         e = np.ascontiguousarray(gas.eps.data, dtype=np.float64)
-        _pressure_fields_kernel(p, e, int(grid.halo), *self._gparams, G, Gb, solid)
+        part = self._ws.get("_Gpart")
+        if part is None or part.shape != (grid.shape[0], 3):
+            part = self._ws["_Gpart"] = np.empty((grid.shape[0], 3))
+        _pressure_fields_kernel(p, e, int(grid.halo), *self._gparams, G, Gb, part, solid)
         return G, Gb, solid
 
     def _centre_from_faces(self, grads, boundary=False):
