@@ -45,7 +45,7 @@ import difflib
 
 import numpy as np
 
-from cfddem._jit import kernel
+from cfddem._jit import kernel, parallel_kernel, prange
 from cfddem.errors import CaseError
 
 __all__ = [
@@ -108,16 +108,39 @@ def beetstra(eps, re):
     Re -> 0 (van der Hoef et al. 2005, J. Fluid Mech. 528:233, times eps).
     """
     eps, re = _prep(eps, re)
-    phi = 1.0 - eps
-    e2 = eps * eps
-    s = 0.5 + 2.0 * phi  # (1 + 4 phi)/2
+    shape = eps.shape
+    e = np.ascontiguousarray(eps).reshape(-1)
+    r = np.ascontiguousarray(re).reshape(-1)
+    phi = 1.0 - e
+    # the powers by numpy (SIMD: about 2 ns per value against 20-40 ns for the scalar pow of
+    # a compiled loop); 10^(3 phi) as exp(3 ln(10) phi) (numpy's exp: 0.02 against 0.14-0.22
+    # ms for pow on 30k values); the rest in one compiled pass (it took 0.6 ms in numpy)
     with np.errstate(divide="ignore", invalid="ignore"):
-        rs = re**s
-        num = re / eps + 3.0 * eps * phi * re + 8.4 * re**0.657
-        # 10^(3 phi) as exp(3 ln(10) phi): numpy's SIMD exp, 0.02 against 0.22 ms for pow on 30k values
-        inert = 0.413 / (24.0 * e2) * num * rs / (rs + np.exp(6.907755278982138 * phi))
-    inert = np.where(re > 0.0, inert, 0.0)
-    return _out(10.0 * phi / e2 + e2 * (1.0 + 1.5 * np.sqrt(phi)) + inert)
+        rs = r ** (0.5 + 2.0 * phi)  # Re^((1 + 4 phi)/2)
+        r657 = r**0.657
+    ex = np.exp(6.907755278982138 * phi)
+    out = np.empty(e.shape)
+    _beetstra_rest(e, r, rs, r657, ex, out)
+    return _out(out.reshape(shape))
+
+
+@parallel_kernel
+def _beetstra_rest(e, r, rs, r657, ex, out):
+    """:func:`beetstra` from the powers ``rs = Re^((1 + 4 phi)/2)``, ``r657 = Re^0.657`` and
+    ``ex = 10^(3 phi)``, each value its own slot, the operations in the order of the formula
+    (the inertial term 0 where Re <= 0)."""
+    for p in prange(out.shape[0]):
+        eps = e[p]
+        re = r[p]
+        phi = 1.0 - eps
+        e2 = eps * eps
+        f = 10.0 * phi / e2 + e2 * (1.0 + 1.5 * np.sqrt(phi))
+        inert = 0.0
+        if re > 0.0:
+            num = re / eps + 3.0 * eps * phi * re + 8.4 * r657[p]
+            inert = 0.413 / (24.0 * e2) * num * rs[p] / (rs[p] + ex[p])
+        out[p] = f + inert
+    return 0
 
 
 def wen_yu(eps, re):
