@@ -36,6 +36,7 @@ from typing import Callable
 
 import numpy as np
 
+from cfddem._jit import kernel
 from cfddem.errors import CaseError
 from cfddem.gas.grid import StaggeredGrid
 
@@ -218,6 +219,7 @@ class BoundarySet:
     def _precompute(self):
         self._ub = {}
         self._pout = {}
+        self._ops = {}
         for s in SIDES:
             bc = self.bcs[s]
             d = "xyz".index(s[0])
@@ -240,33 +242,85 @@ class BoundarySet:
         return self._ub.get((side, comp))
 
     # --- halo filling -------------------------------------------------------------------
-    def fill_velocity(self, u: np.ndarray, v: np.ndarray, w: np.ndarray) -> None:
+    # Every fill is a fixed, ordered list of elementwise assignments on the flat array,
+    #     mode 0: a[dst] = a[src]; mode 1: a[dst] = cst - a[src]; mode 2: a[dst] = cst,
+    # recorded once per (array kind) from the slice statements of the ``_*_statements``
+    # methods (the reference numpy implementation, ``compiled=False``) and run by one
+    # compiled loop (:func:`_run_fill`).  The same operations in the same order, so the
+    # compiled fill equals the numpy fill bit for bit (cst = 2 u_b, and ``cst - a`` is the
+    # numpy expression ``2.0 * u_b - a``).
+    def fill_velocity(self, u: np.ndarray, v: np.ndarray, w: np.ndarray, compiled: bool = True) -> None:
         """Fill halos (and prescribed boundary faces) of the three velocity arrays in place."""
-        comps = (u, v, w)
-        for d in range(3):
-            for c in range(3):
-                self._fill_component(comps[c], c, d)
+        for c, a in enumerate((u, v, w)):
+            self.fill_component(a, c, compiled)
 
-    def fill_component(self, a: np.ndarray, c: int) -> None:
+    def fill_component(self, a: np.ndarray, c: int, compiled: bool = True) -> None:
         """Fill the halos (and prescribed boundary faces) of velocity component c only."""
-        for d in range(3):
-            self._fill_component(a, c, d)
+        self._fill(a, ("velocity", c), lambda: self._component_statements(c), compiled)
 
-    def _fill_component(self, a: np.ndarray, c: int, d: int) -> None:
+    def fill_pressure(self, p: np.ndarray, homogeneous: bool = False, compiled: bool = True) -> None:
+        """Fill the halos of a centre pressure array.  ``homogeneous``: outlet value 0
+        (for the pressure increment of the projection)."""
+        self._fill(p, ("pressure", homogeneous), lambda: self._pressure_statements(homogeneous), compiled)
+
+    def fill_scalar(self, a: np.ndarray, compiled: bool = True) -> None:
+        """Zero-gradient halos (wrap at periodic sides) for a centre scalar (porosity)."""
+        self._fill(a, ("scalar",), self._scalar_statements, compiled)
+
+    def _fill(self, a, key, statements, compiled):
+        if not compiled or not (a.flags.c_contiguous and a.dtype == np.float64):
+            for dst, src, mode, cst in statements():
+                if mode == 0:
+                    a[dst] = a[src]
+                elif mode == 1:
+                    a[dst] = cst - a[src]
+                else:
+                    a[dst] = cst
+            return
+        ops = self._ops.get(key)
+        if ops is None or ops[4] != a.shape:
+            ops = self._record(a.shape, statements())
+            self._ops[key] = ops
+        _run_fill(a.reshape(-1), ops[0], ops[1], ops[2], ops[3])
+
+    @staticmethod
+    def _record(shape, statements):
+        """The statements as flat (dst, src, mode, cst) arrays for :func:`_run_fill`."""
+        idx = np.arange(int(np.prod(shape)), dtype=np.int64).reshape(shape)
+        D, S, M, C = [], [], [], []
+        for dst, src, mode, cst in statements:
+            d = idx[dst].ravel()
+            D.append(d)
+            S.append(idx[src].ravel() if mode != 2 else np.zeros(d.size, dtype=np.int64))
+            M.append(np.full(d.size, mode, dtype=np.int64))
+            C.append(np.broadcast_to(np.asarray(cst, dtype=np.float64), idx[dst].shape).ravel()
+                     if mode != 0 else np.zeros(d.size))
+        cat = (lambda x, t: np.concatenate(x) if x else np.zeros(0, dtype=t))
+        return (cat(D, np.int64), cat(S, np.int64), cat(M, np.int64), cat(C, np.float64), tuple(shape))
+
+    def _component_statements(self, c: int) -> list:
+        out = []
+        for d in range(3):
+            out.extend(self._component_axis(c, d))
+        return out
+
+    def _component_axis(self, c: int, d: int) -> list:
+        """The fill of component c along direction d as (dst, src, mode, cst) slice statements."""
         g = self.grid.halo
         n = self.grid.shape[d]
         lo, hi = SIDES[2 * d], SIDES[2 * d + 1]
+        st = []
         if self.periodic[d]:
             if c == d:
-                a[_sl(d, g + n)] = a[_sl(d, g)]
+                st.append((_sl(d, g + n), _sl(d, g), 0, 0.0))
                 for m in range(1, g + 1):
-                    a[_sl(d, g - m)] = a[_sl(d, g + n - m)]
-                    a[_sl(d, g + n + m)] = a[_sl(d, g + m)]
+                    st.append((_sl(d, g - m), _sl(d, g + n - m), 0, 0.0))
+                    st.append((_sl(d, g + n + m), _sl(d, g + m), 0, 0.0))
             else:
                 for m in range(1, g + 1):
-                    a[_sl(d, g - m)] = a[_sl(d, g + n - m)]
-                    a[_sl(d, g + n - 1 + m)] = a[_sl(d, g - 1 + m)]
-            return
+                    st.append((_sl(d, g - m), _sl(d, g + n - m), 0, 0.0))
+                    st.append((_sl(d, g + n - 1 + m), _sl(d, g - 1 + m), 0, 0.0))
+            return st
         for side, lower in ((lo, True), (hi, False)):
             kind = self.kinds[side]
             ub = self._ub.get((side, c))
@@ -277,11 +331,12 @@ class BoundarySet:
                 sgn = -1 if lower else 1
                 if kind == "outlet":
                     for m in range(1, g + 1):
-                        a[_sl(d, b + sgn * m)] = a[_sl(d, b)]
+                        st.append((_sl(d, b + sgn * m), _sl(d, b), 0, 0.0))
                 else:
-                    a[_sl(d, slice(b, b + 1))] = ub
+                    st.append((_sl(d, slice(b, b + 1)), None, 2, ub))
                     for m in range(1, g + 1):
-                        a[_sl(d, slice(b + sgn * m, b + sgn * m + 1))] = 2.0 * ub - a[_sl(d, slice(b - sgn * m, b - sgn * m + 1))]
+                        st.append((_sl(d, slice(b + sgn * m, b + sgn * m + 1)),
+                                   _sl(d, slice(b - sgn * m, b - sgn * m + 1)), 1, 2.0 * ub))
             else:  # tangential component, first interior point half a cell from the side
                 for m in range(1, g + 1):
                     if lower:
@@ -289,41 +344,57 @@ class BoundarySet:
                     else:
                         gi, mi, fi = g + n - 1 + m, g + n - m, g + n - 1
                     if kind == "outlet":
-                        a[_sl(d, gi)] = a[_sl(d, fi)]
+                        st.append((_sl(d, gi), _sl(d, fi), 0, 0.0))
                     elif kind == "freeslip":
-                        a[_sl(d, gi)] = a[_sl(d, mi)]
+                        st.append((_sl(d, gi), _sl(d, mi), 0, 0.0))
                     else:
-                        a[_sl(d, slice(gi, gi + 1))] = 2.0 * ub - a[_sl(d, slice(mi, mi + 1))]
+                        st.append((_sl(d, slice(gi, gi + 1)), _sl(d, slice(mi, mi + 1)), 1, 2.0 * ub))
+        return st
 
-    def fill_pressure(self, p: np.ndarray, homogeneous: bool = False) -> None:
-        """Fill the halos of a centre pressure array.  ``homogeneous``: outlet value 0
-        (for the pressure increment of the projection)."""
+    def _pressure_statements(self, homogeneous: bool) -> list:
         g = self.grid.halo
+        st = []
         for d in range(3):
             n = self.grid.shape[d]
             if self.periodic[d]:
                 for m in range(1, g + 1):
-                    p[_sl(d, g - m)] = p[_sl(d, g + n - m)]
-                    p[_sl(d, g + n - 1 + m)] = p[_sl(d, g - 1 + m)]
+                    st.append((_sl(d, g - m), _sl(d, g + n - m), 0, 0.0))
+                    st.append((_sl(d, g + n - 1 + m), _sl(d, g - 1 + m), 0, 0.0))
                 continue
             for side, lower in ((SIDES[2 * d], True), (SIDES[2 * d + 1], False)):
                 for m in range(1, g + 1):
                     gi, mi = (g - m, g + m - 1) if lower else (g + n - 1 + m, g + n - m)
                     if self.kinds[side] == "outlet":
                         pb = 0.0 if homogeneous else self._pout[side]
-                        p[_sl(d, slice(gi, gi + 1))] = 2.0 * pb - p[_sl(d, slice(mi, mi + 1))]
+                        st.append((_sl(d, slice(gi, gi + 1)), _sl(d, slice(mi, mi + 1)), 1, 2.0 * pb))
                     else:
-                        p[_sl(d, gi)] = p[_sl(d, mi)]
+                        st.append((_sl(d, gi), _sl(d, mi), 0, 0.0))
+        return st
 
-    def fill_scalar(self, a: np.ndarray) -> None:
-        """Zero-gradient halos (wrap at periodic sides) for a centre scalar (porosity)."""
+    def _scalar_statements(self) -> list:
         g = self.grid.halo
+        st = []
         for d in range(3):
             n = self.grid.shape[d]
             for m in range(1, g + 1):
                 if self.periodic[d]:
-                    a[_sl(d, g - m)] = a[_sl(d, g + n - m)]
-                    a[_sl(d, g + n - 1 + m)] = a[_sl(d, g - 1 + m)]
+                    st.append((_sl(d, g - m), _sl(d, g + n - m), 0, 0.0))
+                    st.append((_sl(d, g + n - 1 + m), _sl(d, g - 1 + m), 0, 0.0))
                 else:
-                    a[_sl(d, g - m)] = a[_sl(d, g + m - 1)]
-                    a[_sl(d, g + n - 1 + m)] = a[_sl(d, g + n - m)]
+                    st.append((_sl(d, g - m), _sl(d, g + m - 1), 0, 0.0))
+                    st.append((_sl(d, g + n - 1 + m), _sl(d, g + n - m), 0, 0.0))
+        return st
+
+
+@kernel
+def _run_fill(a, dst, src, mode, cst):
+    """Run a recorded halo fill on the flat array a, in order: mode 0 ``a[dst] = a[src]``,
+    1 ``a[dst] = cst - a[src]``, 2 ``a[dst] = cst``."""
+    for q in range(dst.size):
+        m = mode[q]
+        if m == 0:
+            a[dst[q]] = a[src[q]]
+        elif m == 1:
+            a[dst[q]] = cst[q] - a[src[q]]
+        else:
+            a[dst[q]] = cst[q]
