@@ -588,19 +588,24 @@ def _scatter_pair(i0, i1, j0, j1, k0, k1, wx0, wx1, wy0, wy1, wz0, wz1, k, kv, o
 
 
 @parallel_kernel
-def _deposit_drag_chunks_kernel(parity, pstart, perm, idx, wf, live, zface, keff, vel, ox, oy, oz):
+def _deposit_drag_chunks_kernel(parity, pstart0, perm0, pstart1, perm1, idx, wf, live, keff, vel, ox, oy, oz):
     """o_c[t, 0] += w_pt K[p], o_c[t, 1] += w_pt (K[p] vel[p, c]) on face grid c (skipped
     where ``live[c]`` is 0; node arrays with a trailing pair axis, so that both sums of a
-    node share a cache line), for the particles of the z chunks of the given parity:
-    ``zface`` 0: the x- and y-face grids (they share the centre z nodes; chunks of the centre
-    sort), 1: the z-face grid (chunks of the face sort).  Race-free and thread-independent
-    as :func:`_porosity_chunks_kernel`."""
-    nb = pstart.shape[0] - 1
-    nq = (nb - parity + 1) // 2
-    for q in prange(nq):
-        b = 2 * q + parity
-        for t in range(pstart[b], pstart[b + 1]):
-            p = perm[t]
+    node share a cache line), for the particles of the z chunks of the given parity: the
+    x- and y-face grids share the centre z nodes (chunks of the centre sort ``pstart0,
+    perm0``), the z-face grid has its own (chunks of the face sort ``pstart1, perm1``); the
+    chunks of both sorts in one prange (they write different grids).  Race-free and
+    thread-independent as :func:`_porosity_chunks_kernel`."""
+    nq0 = (pstart0.shape[0] - 1 - parity + 1) // 2
+    nq1 = (pstart1.shape[0] - 1 - parity + 1) // 2
+    for qu in prange(nq0 + nq1):
+        q = np.int64(qu)  # (a prange index may be unsigned; mixed with signed ints it types as float)
+        zface = 0 if q < nq0 else 1
+        b = 2 * (q if q < nq0 else q - nq0) + parity
+        t0 = pstart0[b] if zface == 0 else pstart1[b]
+        t1 = pstart0[b + 1] if zface == 0 else pstart1[b + 1]
+        for t in range(t0, t1):
+            p = perm0[t] if zface == 0 else perm1[t]
             k = keff[p]
             cx0, cx1, vx0, vx1 = _cw(idx, wf, p, 0, 0)
             cy0, cy1, vy0, vy1 = _cw(idx, wf, p, 1, 0)
@@ -1019,10 +1024,10 @@ class MappingPlan:
         if self.n:
             _, _, live = self._params()
             idx, wf = self._compact()
-            for face in (0, 1):  # x and y faces: centre z nodes; z faces
-                pstart, perm = self._chunks(face)
-                for parity in (0, 1):
-                    _deposit_drag_chunks_kernel(parity, pstart, perm, idx, wf, live, face, k, vel, *pairs)
+            ps0, pm0 = self._chunks(0)  # x and y faces: centre z nodes
+            ps1, pm1 = self._chunks(1)  # z faces
+            for parity in (0, 1):
+                _deposit_drag_chunks_kernel(parity, ps0, pm0, ps1, pm1, idx, wf, live, k, vel, *pairs)
         return pairs
 
     def _stacked(self, fields, key):
