@@ -169,8 +169,29 @@ def momentum_rhs_kernel(u, v, w, eo, en, out, su, sv, sw, se, so, uA, uB, uC, vA
 PERM = ((0, 1, 2), (1, 2, 0), (2, 0, 1))
 
 
+_STRIDES: dict = {}
+_COORDS: dict = {}
+
+
 def _strides(a: np.ndarray) -> np.ndarray:
-    return np.array(a.strides, dtype=np.int64) // a.itemsize
+    """Element strides of a (cached per (shape, strides); the arrays returned are not written)."""
+    key = (a.shape, a.strides, a.itemsize)
+    s = _STRIDES.get(key)
+    if s is None:
+        s = np.array(a.strides, dtype=np.int64) // a.itemsize
+        _STRIDES[key] = s
+    return s
+
+
+def _coords(grid, comp: int) -> tuple:
+    """Coordinates with halos of component comp's faces along x, y, z (cached per grid)."""
+    key = (grid.shape, grid.lengths, grid.origin, grid.halo, comp)
+    c = _COORDS.get(key)
+    if c is None:
+        loc = ("fcc", "cfc", "ccf")[comp]
+        c = tuple(grid.coords(loc, d, with_halo=True) for d in range(3))
+        _COORDS[key] = c
+    return c
 
 
 def momentum_rhs(comp: int, vel: tuple, eps_old: np.ndarray, eps_new: np.ndarray, grid, *, nu: float,
@@ -180,14 +201,13 @@ def momentum_rhs(comp: int, vel: tuple, eps_old: np.ndarray, eps_new: np.ndarray
     All arrays must be C-contiguous (the solver's are)."""
     A, B, C = PERM[comp]
     u, v, w = vel[A], vel[B], vel[C]
-    su, sv, sw, se, so = (_strides(a) for a in (u, v, w, eps_old, out))
-    if not (np.array_equal(se, _strides(eps_new)) and all(a.flags.c_contiguous for a in (u, v, w, eps_old, eps_new, out))):
+    if not (eps_old.shape == eps_new.shape and all(a.flags.c_contiguous for a in (u, v, w, eps_old, eps_new, out))):
         raise ValueError("momentum_rhs needs C-contiguous arrays, eps_old and eps_new of one shape")
+    su, sv, sw, se, so = (_strides(a) for a in (u, v, w, eps_old, out))
     g = grid.halo
     sp = grid.spacing
     n = grid.shape
-    loc = ("fcc", "cfc", "ccf")[comp]
-    X, Y, Z = (grid.coords(loc, d, with_halo=True) for d in range(3))
+    X, Y, Z = _coords(grid, comp)
     lo, hi = face_range
     lim = [[g, g + n[0]], [g, g + n[1]], [g, g + n[2]]]
     lim[comp] = [g + lo, g + hi]

@@ -117,3 +117,48 @@ def max_abs_kernel(a, g, n0, n1, n2):
                 if v > m or v != v:  # a NaN is kept (nothing compares greater than it)
                     m = v
     return m
+
+
+@kernel
+def divergence_defect_kernel(u, v, w, en, eo, rdx, rdy, rdz, dt, g, nx, ny, nz):
+    """max over cells of |div(eps_f u) + (eps^{n+1} - eps^n)/dt| * dt in one pass, the
+    divergence computed inline with the expression of
+    :func:`cfddem.gas.operators.porous_divergence_kernel` (same operations, same result as
+    that kernel followed by :func:`mass_defect_kernel`; no divergence array written)."""
+    m = 0.0
+    for i in range(g, g + nx):
+        for j in range(g, g + ny):
+            for k in range(g, g + nz):
+                e = en[i, j, k]
+                fxp = 0.5 * (e + en[i + 1, j, k]) * u[i + 1, j, k]
+                fxm = 0.5 * (en[i - 1, j, k] + e) * u[i, j, k]
+                fyp = 0.5 * (e + en[i, j + 1, k]) * v[i, j + 1, k]
+                fym = 0.5 * (en[i, j - 1, k] + e) * v[i, j, k]
+                fzp = 0.5 * (e + en[i, j, k + 1]) * w[i, j, k + 1]
+                fzm = 0.5 * (en[i, j, k - 1] + e) * w[i, j, k]
+                d = (fxp - fxm) * rdx + (fyp - fym) * rdy + (fzp - fzm) * rdz
+                val = abs(d + (e - eo[i, j, k]) / dt)
+                if val > m or val != val:  # a NaN is kept (nothing compares greater than it)
+                    m = val
+    return m * dt
+
+
+@kernel
+def _max_abs_interior(a, g, n0, n1, n2):
+    m = 0.0
+    for i in range(g, g + n0):
+        for j in range(g, g + n1):
+            for k in range(g, g + n2):
+                v = abs(a[U(i), U(j), U(k)])
+                if v > m or v != v:
+                    m = v
+    return m
+
+
+@kernel
+def step_maxima_kernel(u, v, w, p, g, nx, ny, nz):
+    """(max|u|, max|v|, max|w|, max|p|) over the interior entries of the three face arrays
+    and the centre array in one call (each as :func:`max_abs_kernel`: NaN if an entry is
+    NaN, inf if one is infinite)."""
+    return (_max_abs_interior(u, g, nx + 1, ny, nz), _max_abs_interior(v, g, nx, ny + 1, nz),
+            _max_abs_interior(w, g, nx, ny, nz + 1), _max_abs_interior(p, g, nx, ny, nz))

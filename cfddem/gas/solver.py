@@ -41,8 +41,8 @@ from cfddem.gas.grid import Field, StaggeredGrid
 from cfddem.gas.momentum import momentum_rhs, viscous_laplacian
 from cfddem.gas.multigrid import MGPressureSolver
 from cfddem.gas.operators import porous_divergence_kernel
-from cfddem.gas.projection import (correction_kernel, mass_defect_kernel, max_abs_kernel, predictor_kernel,
-                                   pressure_rhs_kernel)
+from cfddem.gas.projection import (correction_kernel, divergence_defect_kernel, max_abs_kernel, predictor_kernel,
+                                   pressure_rhs_kernel, step_maxima_kernel)
 from cfddem.gas.pressure import PressureSolver
 
 _LOC = ("fcc", "cfc", "ccf")
@@ -317,15 +317,17 @@ class GasSolver:
         self.bc.fill_pressure(self.p.data)
         self.bc.fill_velocity(*vel)
         # --- diagnostics ------------------------------------------------------------------
-        porous_divergence_kernel(vel[0], vel[1], vel[2], en, 1.0 / dx, 1.0 / dy, 1.0 / dz, g, nx, ny, nz, div)
-        self._last_div = float(mass_defect_kernel(div, en, eo, dt, g, nx, ny, nz))
+        # (one pass each: the divergence with the mass defect, the four maxima)
+        self._last_div = float(divergence_defect_kernel(vel[0], vel[1], vel[2], en, eo, 1.0 / dx, 1.0 / dy, 1.0 / dz,
+                                                        dt, g, nx, ny, nz))
         np.copyto(self._eps_prev, en)
         self.time += dt
         self.step_count += 1
         self._last_dt = dt
-        cfl = dt * self._advective_rate()
+        mu_, mv_, mw_, mp_ = step_maxima_kernel(vel[0], vel[1], vel[2], self.p.data, g, nx, ny, nz)
+        cfl = dt * float(mu_ / dx + mv_ / dy + mw_ / dz)
         ok, msg = True, ""
-        finite = np.isfinite(cfl) and np.isfinite(self._max_abs(self.p))
+        finite = np.isfinite(cfl) and np.isfinite(mp_)
         bad = "" if finite else self._first_nonfinite()
         if bad:
             ok, msg = False, bad
