@@ -816,6 +816,10 @@ class MappingPlan:
             arr.fill(0.0)
         return arr
 
+    def _nshape(self, location):
+        """:func:`node_shape` of the plan's (already validated) grid."""
+        return tuple(n + (1 if location[a] == "f" else 0) for a, n in enumerate(self.spec.shape))
+
     @property
     def n(self) -> int:
         return self.pos.shape[0]
@@ -992,7 +996,7 @@ class MappingPlan:
     def _fields(self, eps, u, v, w):
         spec = self.spec
         e = None if eps is None else _array(eps, spec.shape, "ccc field")
-        fu, fv, fw = (_array(f, node_shape(spec, loc), loc + " field") for f, loc in zip((u, v, w), FACE_LOCATIONS))
+        fu, fv, fw = (_array(f, self._nshape(loc), loc + " field") for f, loc in zip((u, v, w), FACE_LOCATIONS))
         return e, fu, fv, fw
 
     def interpolate_slip(self, eps, u, v, w, vel, diameter, rho, mu):
@@ -1033,7 +1037,7 @@ class MappingPlan:
         the workspace."""
         k = self._per_particle(keff, "drag coefficient")
         vel = self._vel(vel)
-        pairs = tuple(self._buf("dkp" + loc, node_shape(self.spec, loc) + (2,), zero=True) for loc in FACE_LOCATIONS)
+        pairs = tuple(self._buf("dkp" + loc, self._nshape(loc) + (2,), zero=True) for loc in FACE_LOCATIONS)
         if self.n:
             _, _, live = self._params()
             idx, wf = self._compact()
