@@ -54,8 +54,10 @@ def test_chute_coupling_diagnostics(root):
     lines = coupling_diagnostics(case)
     text = "\n".join(lines)
     assert "cell volume / particle volume" in text and "relaxation time" in text and "CFL" in text
-    # 5 x 3 x 6 mm cells hold 6.4 particle volumes of 3 mm beads
-    assert "= 6.37" in text
+    # 5 x 5.625 x 6 mm cells (16 x 8 x 150) hold 11.9 particle volumes of 3 mm beads
+    assert "= 11.9" in text
+    fine = load_case(root / "cases" / "chute_16rpm", overrides=["gas.enabled=true", "gas.cells=[16, 15, 150]"])
+    assert "= 6.37" in "\n".join(coupling_diagnostics(fine))  # the reference study's 5 x 3 x 6 mm cells: 6.4
     off = load_case(root / "cases" / "chute_16rpm", overrides=["gas.enabled=false"])
     assert coupling_diagnostics(off) == ["gas: off"]
 
