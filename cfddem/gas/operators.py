@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cfddem._jit import parallel_kernel, prange
+from cfddem._jit import kernel, parallel_kernel, prange
 from cfddem.gas.grid import Field
 
 
@@ -66,20 +66,28 @@ def _f2c(f, di, dj, dk, scale, mode, out):
                     out[i, j, k] = (hi - lo) * scale
 
 
+@kernel
+def porous_divergence_at(u, v, w, eps, i, j, k, rdx, rdy, rdz):
+    """div(e_f u) at the cell centre (i, j, k) (array indices): the six face fluxes with the
+    face porosity e_f the arithmetic mean of the two cells beside the face."""
+    e = eps[i, j, k]
+    fxp = 0.5 * (e + eps[i + 1, j, k]) * u[i + 1, j, k]
+    fxm = 0.5 * (eps[i - 1, j, k] + e) * u[i, j, k]
+    fyp = 0.5 * (e + eps[i, j + 1, k]) * v[i, j + 1, k]
+    fym = 0.5 * (eps[i, j - 1, k] + e) * v[i, j, k]
+    fzp = 0.5 * (e + eps[i, j, k + 1]) * w[i, j, k + 1]
+    fzm = 0.5 * (eps[i, j, k - 1] + e) * w[i, j, k]
+    return (fxp - fxm) * rdx + (fyp - fym) * rdy + (fzp - fzm) * rdz
+
+
 @parallel_kernel
 def porous_divergence_kernel(u, v, w, eps, rdx, rdy, rdz, g, nx, ny, nz, out):
-    """out[c] = div(e_f u) at interior centres (array indices g..g+n-1); e_f arithmetic mean."""
+    """out[c] = div(e_f u) at interior centres (array indices g..g+n-1); e_f arithmetic mean
+    (:func:`porous_divergence_at`)."""
     for i in prange(g, g + nx):
         for j in range(g, g + ny):
             for k in range(g, g + nz):
-                e = eps[i, j, k]
-                fxp = 0.5 * (e + eps[i + 1, j, k]) * u[i + 1, j, k]
-                fxm = 0.5 * (eps[i - 1, j, k] + e) * u[i, j, k]
-                fyp = 0.5 * (e + eps[i, j + 1, k]) * v[i, j + 1, k]
-                fym = 0.5 * (eps[i, j - 1, k] + e) * v[i, j, k]
-                fzp = 0.5 * (e + eps[i, j, k + 1]) * w[i, j, k + 1]
-                fzm = 0.5 * (eps[i, j, k - 1] + e) * w[i, j, k]
-                out[i, j, k] = (fxp - fxm) * rdx + (fyp - fym) * rdy + (fzp - fzm) * rdz
+                out[i, j, k] = porous_divergence_at(u, v, w, eps, i, j, k, rdx, rdy, rdz)
 
 
 @parallel_kernel

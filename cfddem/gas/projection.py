@@ -24,6 +24,8 @@ from __future__ import annotations
 from cfddem._jit import kernel, parallel_kernel, prange  # noqa: I001
 from numba import uint64 as U
 
+from cfddem.gas.operators import porous_divergence_at
+
 
 @parallel_kernel
 def predictor_kernel(u, en, p, rhs, S, K, Up, dt, rho, rh, g, di, dj, dk, lo, hi, explicit, coef, ratio, numer, den):
@@ -122,22 +124,15 @@ def max_abs_kernel(a, g, n0, n1, n2):
 @kernel
 def divergence_defect_kernel(u, v, w, en, eo, rdx, rdy, rdz, dt, g, nx, ny, nz):
     """max over cells of |div(eps_f u) + (eps^{n+1} - eps^n)/dt| * dt in one pass, the
-    divergence computed inline with the expression of
-    :func:`cfddem.gas.operators.porous_divergence_kernel` (same operations, same result as
-    that kernel followed by :func:`mass_defect_kernel`; no divergence array written)."""
+    divergence from :func:`cfddem.gas.operators.porous_divergence_at` (the same result as
+    :func:`cfddem.gas.operators.porous_divergence_kernel` followed by
+    :func:`mass_defect_kernel`; no divergence array written)."""
     m = 0.0
     for i in range(g, g + nx):
         for j in range(g, g + ny):
             for k in range(g, g + nz):
-                e = en[i, j, k]
-                fxp = 0.5 * (e + en[i + 1, j, k]) * u[i + 1, j, k]
-                fxm = 0.5 * (en[i - 1, j, k] + e) * u[i, j, k]
-                fyp = 0.5 * (e + en[i, j + 1, k]) * v[i, j + 1, k]
-                fym = 0.5 * (en[i, j - 1, k] + e) * v[i, j, k]
-                fzp = 0.5 * (e + en[i, j, k + 1]) * w[i, j, k + 1]
-                fzm = 0.5 * (en[i, j, k - 1] + e) * w[i, j, k]
-                d = (fxp - fxm) * rdx + (fyp - fym) * rdy + (fzp - fzm) * rdz
-                val = abs(d + (e - eo[i, j, k]) / dt)
+                d = porous_divergence_at(u, v, w, en, i, j, k, rdx, rdy, rdz)
+                val = abs(d + (en[i, j, k] - eo[i, j, k]) / dt)
                 if val > m or val != val:  # a NaN is kept (nothing compares greater than it)
                     m = val
     return m * dt

@@ -95,3 +95,22 @@ def test_gradient_second_order_for_smooth_field():
         errs.append(np.max(np.abs(gx.interior - 2 * np.pi * np.cos(2 * np.pi * X))))
     orders = np.log2(np.array(errs[:-1]) / np.array(errs[1:]))
     assert np.all(np.abs(orders - 2.0) < 0.1), orders
+
+
+def test_divergence_defect_kernel_equals_divergence_then_defect():
+    """The one-pass mass-balance defect equals the porous divergence kernel followed by the
+    defect kernel, bit for bit, and keeps a NaN."""
+    from cfddem.gas.operators import porous_divergence_kernel
+    from cfddem.gas.projection import divergence_defect_kernel, mass_defect_kernel
+
+    rng = np.random.default_rng(7)
+    g, (nx, ny, nz) = 1, (5, 4, 6)
+    shp = (nx + 2 * g, ny + 2 * g, nz + 2 * g)
+    u, v, w = (rng.normal(size=(shp[0] + (c == 0), shp[1] + (c == 1), shp[2] + (c == 2))) for c in range(3))
+    en, eo = rng.uniform(0.4, 1.0, shp), rng.uniform(0.4, 1.0, shp)
+    div = np.zeros(shp)
+    porous_divergence_kernel(u, v, w, en, 1 / 0.1, 1 / 0.2, 1 / 0.3, g, nx, ny, nz, div)
+    ref = mass_defect_kernel(div, en, eo, 1e-3, g, nx, ny, nz)
+    assert ref > 0 and divergence_defect_kernel(u, v, w, en, eo, 1 / 0.1, 1 / 0.2, 1 / 0.3, 1e-3, g, nx, ny, nz) == ref
+    w[2, 2, 3] = np.nan
+    assert np.isnan(divergence_defect_kernel(u, v, w, en, eo, 10.0, 5.0, 1 / 0.3, 1e-3, g, nx, ny, nz))
