@@ -926,7 +926,11 @@ class MGPressureSolver:
 
     def __init__(self, grid, pressure_bc: dict, *, tol: float = 1e-8, maxiter: int = 200,
                  nu: int = 2, coarse_max: int = 128, coarsen_ratio: float = 1.5, omega: float = 1.2,
-                 chebyshev: int = 0, cheb_ratio: float = 6.0, par_min: int = 1 << 40):
+                 chebyshev: int = 0, cheb_ratio: float = 6.0, par_min: int = 1 << 40,
+                 precision: str = "double"):
+        if precision not in ("single", "double"):
+            raise ValueError(f"precision must be 'single' or 'double', got {precision!r}")
+        self.precision = precision
         self.grid = grid
         self.pressure_bc = dict(pressure_bc)
         self.tol = float(tol)
@@ -1014,12 +1018,23 @@ class MGPressureSolver:
         self._dX, self._dY, self._dZ = np.zeros(tot), np.zeros(tot), np.zeros(tot)
         self._dg = np.zeros(tot)
         self._idg = np.zeros(tot)
-        self._v = [self._cE, self._cN, self._cT, self._dg, self._idg]  # the V-cycle's operator
-        self._t1, self._t2 = np.zeros(self.N), np.zeros(self.N)
-        self._xl, self._bl, self._rl = np.zeros(tot), np.zeros(tot), np.zeros(tot)
-        self._dw, self._qw = np.zeros(tot), np.zeros(tot)
         nc = sizes[-1]
         self._dense = np.zeros((nc, nc))
+        # the V-cycle's operator, transfer weights, coarsest factor and work arrays: the
+        # set-up's float64 arrays themselves, or float32 copies (precision="single", refreshed
+        # at every set_coefficients); CG's vectors and operator stay float64 either way
+        vt = np.float32 if precision == "single" else np.float64
+        if precision == "single":
+            self._v = [np.zeros(tot, dtype=vt) for _ in range(5)]
+            self._vAXF = self._AXF.astype(vt)
+            self._vdense = np.zeros((nc, nc), dtype=vt)
+        else:
+            self._v = [self._cE, self._cN, self._cT, self._dg, self._idg]
+            self._vAXF = self._AXF
+            self._vdense = self._dense
+        self._t1, self._t2 = np.zeros(self.N, dtype=vt), np.zeros(self.N, dtype=vt)
+        self._xl, self._bl, self._rl = np.zeros(tot, dtype=vt), np.zeros(tot, dtype=vt), np.zeros(tot, dtype=vt)
+        self._dw, self._qw = np.zeros(tot, dtype=vt), np.zeros(tot, dtype=vt)
         self._vec = [np.zeros(self.N) for _ in range(6)]  # b, x, r, z, p, q
         self._part = np.zeros(max(nx, 1))  # per-plane partial sums
         self._ones = np.ones(self.N)
@@ -1064,6 +1079,10 @@ class MGPressureSolver:
                                    self._dX, self._dY, self._dZ, self._dg, self._idg, self._dense,
                                    self.singular, self.omega)
         self._ready = flag == 0
+        if self.precision == "single":
+            for dst, src in zip(self._v, (self._cE, self._cN, self._cT, self._dg, self._idg)):
+                dst[:] = src
+            self._vdense[:] = self._dense
 
     # interface of PressureSolver's hierarchy reuse (nothing to reuse here)
     def needs_rebuild(self) -> bool:
@@ -1095,7 +1114,7 @@ class MGPressureSolver:
     def vcycle(self, r: np.ndarray) -> np.ndarray:
         """One V-cycle applied to a (volume-scaled) residual r: the preconditioner M r."""
         z = np.empty(self.N)
-        _vcycle(self._LV, self._LF, self._AOFF, self._AXI, self._AXF, *self._v, self._dense, self._xl, self._bl,
+        _vcycle(self._LV, self._LF, self._AOFF, self._AXI, self._vAXF, *self._v, self._vdense, self._xl, self._bl,
                 self._rl, self._t1, self._t2, self._dw, self._qw, self.nu, self.chebyshev, 2.0 / self.cheb_ratio,
                 np.ascontiguousarray(r, dtype=np.float64).ravel()[self._perm], z, self._part)
         out = np.empty(self.N)
@@ -1121,8 +1140,8 @@ class MGPressureSolver:
             xv[:] = 0.0
         else:
             np.take(np.ravel(x0), self._perm, out=xv)
-        its, rel = _pcg(self._LV, self._LF, self._AOFF, self._AXI, self._AXF, self._cE, self._cN, self._cT,
-                        self._dg, *self._v, self._dense, self._xl, self._bl, self._rl, self._t1, self._t2, self._dw,
+        its, rel = _pcg(self._LV, self._LF, self._AOFF, self._AXI, self._vAXF, self._cE, self._cN, self._cT,
+                        self._dg, *self._v, self._vdense, self._xl, self._bl, self._rl, self._t1, self._t2, self._dw,
                         self._qw, self.nu, self.chebyshev, 2.0 / self.cheb_ratio, self.singular, self.tol,
                         self.maxiter, bv, xv, r, z, p, q, self._part, self._ones, float(atol) * self._vol)
         x = np.empty(self.N)
