@@ -69,6 +69,17 @@ and for the serial path (tested with 1, 2, 3 threads).  Measured on the shared 2
 (load 8-9): 2 threads are 7-10 % slower than 1 on the chute grid, up to 1.19x faster on
 64^3 (docs/gas.md, "Cost").  The set-up's coarsening and the Chebyshev smoother are serial.
 
+Precision (``precision``, default "single"): the V-cycle (its operator, transfer weights,
+coarsest Cholesky factor and work arrays) runs in float32, converted from the float64 set-up
+at every ``set_coefficients``; CG's operator, residual, iterate, direction and inner
+products stay float64 and it stops on the float64 true residual, so the accuracy of the
+solution is unchanged (only the preconditioner is approximated).  Half the memory traffic
+and twice the SIMD lanes: on the chute (16 x 15 x 150) the gas step costs 15-18 % less CPU
+with the same CG iterations (5.1 / 7.0) and defects (docs/gas.md, "Round 6").  The float32
+V-cycle is symmetric only to its rounding (about 1e-8 relative, measured); plain CG with
+it showed no loss of iterations, so no flexible (Polak-Ribiere) beta is used.
+"double": the float64 V-cycle of earlier rounds (exactly symmetric to rounding).
+
 References: Trottenberg, Oosterlee & Schueller, *Multigrid* (2001), ch. 2-5; Mohr &
 Wienands, Comput. Vis. Sci. 7 (2004) 129 (cell-centred transfers); Tatebe, Copper Mountain
 Conf. (1993) (multigrid-preconditioned CG).
@@ -919,7 +930,9 @@ class MGPressureSolver:
     their kernels with the x planes in parallel; the result does not depend on it; default:
     none, serial: in the coupled 16 rpm chute on an idle 2-core machine with 2 numba threads a
     solve took 26.7 ms threaded with par_min = 4096 against 11.3 ms serial, as every one of the
-    hundreds of parallel regions per solve wakes the sleeping OpenMP threads).
+    hundreds of parallel regions per solve wakes the sleeping OpenMP threads), precision
+    ("single", default: the V-cycle in float32 inside the float64 CG, same stopping criteria,
+    15-18 % cheaper gas steps on the chute; "double": the float64 V-cycle; module doc).
     There is no set-up to reuse: the whole hierarchy's coefficients are refreshed from the
     current face coefficients at every ``set_coefficients`` (about one V-cycle's cost).
     """
@@ -927,7 +940,7 @@ class MGPressureSolver:
     def __init__(self, grid, pressure_bc: dict, *, tol: float = 1e-8, maxiter: int = 200,
                  nu: int = 2, coarse_max: int = 128, coarsen_ratio: float = 1.5, omega: float = 1.2,
                  chebyshev: int = 0, cheb_ratio: float = 6.0, par_min: int = 1 << 40,
-                 precision: str = "double"):
+                 precision: str = "single"):
         if precision not in ("single", "double"):
             raise ValueError(f"precision must be 'single' or 'double', got {precision!r}")
         self.precision = precision
