@@ -240,3 +240,33 @@ def test_single_precision_vcycle_meets_the_same_criteria_as_double():
     assert np.linalg.norm(m1 - m2) <= 1e-5 * np.linalg.norm(m2)
     with pytest.raises(ValueError):
         MGPressureSolver(g, pbc, precision="half")
+
+
+def test_setup_is_skipped_only_for_identical_coefficients():
+    """set_coefficients with the coefficients of the last set-up does nothing (counted); any
+    change (one face) rebuilds the whole hierarchy, equal bit for bit to a fresh solver's, in
+    both precisions; a NaN coefficient is never taken as unchanged."""
+    g, pbc, co = chute_like(shape=(8, 7, 20), lengths=(0.04, 0.021, 0.12))
+    for prec in ("double", "single"):
+        mg = MGPressureSolver(g, pbc, precision=prec)
+        mg.set_coefficients(*co)
+        mg.set_coefficients(*[c.copy() for c in co])
+        assert mg.n_setups_skipped == 1
+        co2 = [c.copy() for c in co]
+        co2[1][3, 2, 5] *= 1.5
+        mg.set_coefficients(*co2)
+        assert mg.n_setups_skipped == 1
+        fresh = MGPressureSolver(g, pbc, precision=prec)
+        fresh.set_coefficients(*co2)
+        for name in ("cE", "cN", "cT", "dX", "dY", "dZ", "dg"):
+            for lev in range(len(mg.levels)):
+                assert np.array_equal(mg.level_array(name, lev), fresh.level_array(name, lev))
+        assert all(np.array_equal(a, b) for a, b in zip(mg._v, fresh._v))
+        assert not np.array_equal(mg.level_array("cN", 1), MGPressureSolver(g, pbc).level_array("cN", 1))
+        co3 = [c.copy() for c in co2]
+        co3[0][3, 2, 5] = np.nan  # an interior x face
+        mg.set_coefficients(*co3)
+        mg.set_coefficients(*co3)
+        assert mg.n_setups_skipped == 1
+        phi, info = mg.solve(np.ones(g.shape))
+        assert not info.converged
