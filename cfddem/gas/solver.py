@@ -42,7 +42,7 @@ from cfddem.gas.momentum import momentum_rhs, viscous_laplacian
 from cfddem.gas.multigrid import MGPressureSolver
 from cfddem.gas.operators import porous_divergence_kernel
 from cfddem.gas.projection import (correction_kernel, divergence_defect_kernel, max_abs_kernel, predictor_kernel,
-                                   pressure_rhs_kernel, step_maxima_kernel)
+                                   pressure_rhs_kernel, step_maxima_kernel, local_advective_rate_kernel)
 from cfddem.gas.pressure import PressureSolver
 
 _LOC = ("fcc", "cfc", "ccf")
@@ -56,7 +56,7 @@ class GasStepInfo:
 
     pressure_iterations: int
     pressure_residual: float
-    cfl: float
+    cfl: float  # the largest local Courant number after the step (GasSolver._advective_rate times dt)
     max_divergence: float
     ok: bool
     message: str = ""
@@ -325,9 +325,10 @@ class GasSolver:
         self.step_count += 1
         self._last_dt = dt
         mu_, mv_, mw_, mp_ = step_maxima_kernel(vel[0], vel[1], vel[2], self.p.data, g, nx, ny, nz)
-        cfl = dt * float(mu_ / dx + mv_ / dy + mw_ / dz)
+        cfl = dt * float(local_advective_rate_kernel(vel[0], vel[1], vel[2], 1.0 / dx, 1.0 / dy, 1.0 / dz,
+                                                      g, nx, ny, nz))
         ok, msg = True, ""
-        finite = np.isfinite(cfl) and np.isfinite(mp_)
+        finite = bool(np.isfinite(mu_ + mv_ + mw_) and np.isfinite(mp_) and np.isfinite(cfl))
         bad = "" if finite else self._first_nonfinite()
         if bad:
             ok, msg = False, bad
@@ -399,15 +400,22 @@ class GasSolver:
         return float(max_abs_kernel(f.data, self.grid.halo, *self.grid.interior_shape(f.location)))
 
     def _advective_rate(self) -> float:
-        """max|u|/dx + max|v|/dy + max|w|/dz (NaN or inf if a velocity is not finite)."""
+        """max over cells of max(|u_W|,|u_E|)/dx + max(|v_S|,|v_N|)/dy + max(|w_B|,|w_T|)/dz,
+        the local Courant number per unit time (:func:`~cfddem.gas.projection.local_advective_rate_kernel`;
+        NaN if a velocity is NaN)."""
         dx, dy, dz = self.grid.spacing
-        m = [self._max_abs(f) for f in (self.u, self.v, self.w)]
-        return float(m[0] / dx + m[1] / dy + m[2] / dz)
+        g = self.grid.halo
+        nx, ny, nz = self.grid.shape
+        return float(local_advective_rate_kernel(self.u.data, self.v.data, self.w.data, 1.0 / dx, 1.0 / dy, 1.0 / dz,
+                                                 g, nx, ny, nz))
 
     def max_stable_dt(self) -> float:
         """Largest stable step of the explicit terms:
 
-        * advection: ``cfl_max / (max|u|/dx + max|v|/dy + max|w|/dz)``;
+        * advection: ``cfl_max / max_cells (max(|u_W|,|u_E|)/dx + max(|v_S|,|v_N|)/dy +
+          max(|w_B|,|w_T|)/dz)``, the local Courant number of each cell at most ``cfl_max``
+          (0.5: the positivity bound of forward Euler with the van Leer limiter, whose
+          limited slope at most doubles the upwind difference);
         * viscosity (explicit Euler only; none with ``viscosity="implicit"``): ``1 / (2 nu_e S)``, ``S = max_c [sum_d 1/h_d^2 +
           (1 + lam_ratio)/h_c^2]``, ``nu_e = nu max(eps)/min(eps)``;
         * Coriolis (explicit): ``0.05 / |Omega|`` (amplification ``sqrt(1 + (2|Omega|dt)^2)``

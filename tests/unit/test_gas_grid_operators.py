@@ -114,3 +114,25 @@ def test_divergence_defect_kernel_equals_divergence_then_defect():
     assert ref > 0 and divergence_defect_kernel(u, v, w, en, eo, 1 / 0.1, 1 / 0.2, 1 / 0.3, 1e-3, g, nx, ny, nz) == ref
     w[2, 2, 3] = np.nan
     assert np.isnan(divergence_defect_kernel(u, v, w, en, eo, 10.0, 5.0, 1 / 0.3, 1e-3, g, nx, ny, nz))
+
+
+def test_local_advective_rate_takes_each_cell_own_faces():
+    """The local rate is the largest per-cell sum of the larger of each axis' two face speeds
+    over h; it is below the sum of the per-axis maxima when those sit in different cells."""
+    from cfddem.gas.projection import local_advective_rate_kernel
+
+    g, (nx, ny, nz) = 1, (3, 4, 5)
+    u = np.zeros((nx + 3, ny + 2, nz + 2))
+    v = np.zeros((nx + 2, ny + 3, nz + 2))
+    w = np.zeros((nx + 2, ny + 2, nz + 3))
+    u[2, 1, 1] = -1.0           # x-face between cells (0,0,0) and (1,0,0)
+    w[3, 4, 5] = 3.0            # z-face between cells (2,3,3) and (2,3,4)
+    v[3, 4, 5] = 0.5            # y-face between cells (2,2,4) and (2,3,4)
+    rdx, rdy, rdz = 1 / 0.1, 1 / 0.2, 1 / 0.3
+    r = local_advective_rate_kernel(u, v, w, rdx, rdy, rdz, g, nx, ny, nz)
+    assert r == pytest.approx(3.0 * rdz + 0.5 * rdy)  # cell (2,3,4) holds w and v: 12.5 > 10 (u)
+    assert r < 1.0 * rdx + 0.5 * rdy + 3.0 * rdz
+    u[0, 0, 0] = 1e9            # halo entries do not count
+    assert local_advective_rate_kernel(u, v, w, rdx, rdy, rdz, g, nx, ny, nz) == r
+    w[2, 2, 2] = np.nan
+    assert np.isnan(local_advective_rate_kernel(u, v, w, rdx, rdy, rdz, g, nx, ny, nz))
