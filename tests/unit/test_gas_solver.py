@@ -58,7 +58,7 @@ def test_thread_count_does_not_change_results():
     res = []
     for nt in (1, min(2, numba.config.NUMBA_NUM_THREADS)):
         numba.set_num_threads(nt)
-        g, s = chute_section()
+        g, s = chute_section(threads=None)  # the kernels on every thread the caller has
         s.set_porosity(eps_at(g, 0.0))
         drive(s, g, 0, 5)
         res.append([f.data.copy() for f in (s.u, s.v, s.w, s.p)])
@@ -200,3 +200,29 @@ def test_defect_tol_stops_the_pressure_solve_at_the_guaranteed_mass_balance():
     for i in out[1e-6]:
         assert i.ok and i.max_divergence <= 1e-6
     assert sum(i.pressure_iterations for i in out[1e-6]) < sum(i.pressure_iterations for i in out[0.0])
+
+
+def test_threads_cap_the_step_and_restore_the_callers_count():
+    """threads=1 (the default) runs the step's kernels serially, gives the same numbers as
+    the threaded step and hands the caller's thread count back, also after a failed call."""
+    nt = min(2, numba.config.NUMBA_NUM_THREADS)
+    numba.set_num_threads(nt)
+    try:
+        res = []
+        for threads in (1, None):
+            g, s = chute_section(threads=threads)
+            assert s.threads == threads
+            s.set_porosity(eps_at(g, 0.0))
+            drive(s, g, 0, 3)
+            assert numba.get_num_threads() == nt
+            res.append([f.data.copy() for f in (s.u, s.v, s.w, s.p)])
+        for x, y in zip(*res):
+            assert np.array_equal(x, y)
+        with pytest.raises(CaseError, match="gas.dt"):
+            chute_section(threads=1)[1].step(-1.0)
+        assert numba.get_num_threads() == nt
+        for bad in (0, 1.5, True):
+            with pytest.raises(CaseError, match="gas.threads"):
+                chute_section(threads=bad)
+    finally:
+        numba.set_num_threads(1)
