@@ -141,18 +141,6 @@ def divergence_defect_kernel(u, v, w, en, eo, rdx, rdy, rdz, dt, g, nx, ny, nz):
 
 
 @kernel
-def _max_abs_interior(a, g, n0, n1, n2):
-    m = 0.0
-    for i in range(g, g + n0):
-        for j in range(g, g + n1):
-            for k in range(g, g + n2):
-                v = abs(a[U(i), U(j), U(k)])
-                if v > m or v != v:
-                    m = v
-    return m
-
-
-@kernel
 def local_advective_rate_kernel(u, v, w, rdx, rdy, rdz, g, nx, ny, nz):
     """max over cells of ``max(|u_W|, |u_E|)/dx + max(|v_S|, |v_N|)/dy + max(|w_B|, |w_T|)/dz``
     (the face velocities on the cell's own faces; NaN if one of them is NaN).
@@ -178,12 +166,3 @@ def local_advective_rate_kernel(u, v, w, rdx, rdy, rdz, g, nx, ny, nz):
                 if r > m:
                     m = r
     return m
-
-
-@kernel
-def step_maxima_kernel(u, v, w, p, g, nx, ny, nz):
-    """(max|u|, max|v|, max|w|, max|p|) over the interior entries of the three face arrays
-    and the centre array in one call (each as :func:`max_abs_kernel`: NaN if an entry is
-    NaN, inf if one is infinite)."""
-    return (_max_abs_interior(u, g, nx + 1, ny, nz), _max_abs_interior(v, g, nx, ny + 1, nz),
-            _max_abs_interior(w, g, nx, ny, nz + 1), _max_abs_interior(p, g, nx, ny, nz))

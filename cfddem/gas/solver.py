@@ -42,8 +42,8 @@ from cfddem.gas.grid import Field, StaggeredGrid
 from cfddem.gas.momentum import momentum_rhs, viscous_laplacian
 from cfddem.gas.multigrid import MGPressureSolver
 from cfddem.gas.operators import porous_divergence_kernel
-from cfddem.gas.projection import (correction_kernel, divergence_defect_kernel, max_abs_kernel, predictor_kernel,
-                                   pressure_rhs_kernel, step_maxima_kernel, local_advective_rate_kernel)
+from cfddem.gas.projection import (correction_kernel, divergence_defect_kernel, local_advective_rate_kernel,
+                                   max_abs_kernel, predictor_kernel, pressure_rhs_kernel)
 from cfddem.gas.pressure import PressureSolver
 
 _LOC = ("fcc", "cfc", "ccf")
@@ -338,18 +338,17 @@ class GasSolver:
         self.bc.fill_pressure(self.p.data)
         self.bc.fill_velocity(*vel)
         # --- diagnostics ------------------------------------------------------------------
-        # (one pass each: the divergence with the mass defect, the four maxima)
+        # (one pass each: the divergence with the mass defect, the local Courant number)
         self._last_div = float(divergence_defect_kernel(vel[0], vel[1], vel[2], en, eo, 1.0 / dx, 1.0 / dy, 1.0 / dz,
                                                         dt, g, nx, ny, nz))
         np.copyto(self._eps_prev, en)
         self.time += dt
         self.step_count += 1
         self._last_dt = dt
-        mu_, mv_, mw_, mp_ = step_maxima_kernel(vel[0], vel[1], vel[2], self.p.data, g, nx, ny, nz)
-        cfl = dt * float(local_advective_rate_kernel(vel[0], vel[1], vel[2], 1.0 / dx, 1.0 / dy, 1.0 / dz,
-                                                      g, nx, ny, nz))
+        # the local rate is NaN or inf if a velocity is (the face sets of both are the same)
+        cfl = dt * self._advective_rate()
         ok, msg = True, ""
-        finite = bool(np.isfinite(mu_ + mv_ + mw_) and np.isfinite(mp_) and np.isfinite(cfl))
+        finite = bool(np.isfinite(cfl) and np.isfinite(self._max_abs(self.p)))
         bad = "" if finite else self._first_nonfinite()
         if bad:
             ok, msg = False, bad
