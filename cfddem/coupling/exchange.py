@@ -181,9 +181,6 @@ def _pressure_layer(p, e, hw, spacing, flo, fhi, per, blo, bhi, G, Gb, i):
     return s0, s1, s2
 
 
-
-
-
 @parallel_kernel
 def _pressure_fields_kernel(p, e, hw, spacing, flo, fhi, per, blo, bhi, G, Gb, part, solid):
     """From the halo-filled pressure ``p`` and porosity ``e`` (halo width hw): for each component
@@ -672,17 +669,12 @@ class CoupledGas:
         next call overwrites."""
         gas, grid = self.gas, self.grid
         shape = tuple(grid.shape) + (3,)
-        G = self._ws.get("_G")
-        if G is None or G.shape != shape:
-            G = self._ws["_G"] = np.empty(shape)
-            self._ws["_Gb"] = np.empty(shape)
-        Gb = self._ws["_Gb"]
+        G = self._work("_G", shape)
+        Gb = self._work("_Gb", shape)
         solid = np.empty(3)
         p = np.ascontiguousarray(gas.p.data, dtype=np.float64)
         e = np.ascontiguousarray(gas.eps.data, dtype=np.float64)
-        part = self._ws.get("_Gpart")
-        if part is None or part.shape != (grid.shape[0], 3):
-            part = self._ws["_Gpart"] = np.empty((grid.shape[0], 3))
+        part = self._work("_Gpart", (grid.shape[0], 3))
         _pressure_fields_kernel(p, e, int(grid.halo), *self._gparams, G, Gb, part, solid)
         return G, Gb, solid
 
