@@ -162,7 +162,12 @@ def node_shape(grid, location="ccc") -> tuple:
     spec = as_grid_spec(grid)
     if location not in LOCATIONS:
         raise CaseError("coupling.location", f"unknown location {location!r}; expected one of {LOCATIONS}")
-    return tuple(n + (1 if location[a] == "f" else 0) for a, n in enumerate(spec.shape))
+    return _node_shape(spec.shape, location)
+
+
+def _node_shape(shape, location) -> tuple:
+    """:func:`node_shape` of cell counts ``shape`` and a valid location, unchecked."""
+    return tuple(n + (1 if location[a] == "f" else 0) for a, n in enumerate(shape))
 
 
 class _Axes(NamedTuple):
@@ -377,6 +382,23 @@ def _cw(idx, wf, p, a, face):
     return idx[p, j], idx[p, j + 1], 1.0 - f, f
 
 
+@kernel(inline="always")
+def _store_axis(idx, wf, p, a, x, x0c, hc, nc, pc, loc, hic, bc, smic, smac, x0f, hf, nf, pf, lof, hif, bf, smif,
+                smaf):
+    """Store particle p's compact weights along axis a at coordinate x, in the layout that
+    :func:`_cw` reads: ``idx[p, 4a:4a+4]`` = (centre i0, centre i1, face i0, face i1) and
+    ``wf[p, 2a:2a+2]`` = (centre f, face f), from :func:`_axis_weights` with the centre
+    (``*c``) and the face (``*f``) axis parameters."""
+    b, i0, i1, v0, v1 = _axis_weights(x, x0c, hc, nc, pc, loc, hic, bc, smic, smac)
+    b, j0, j1, u0, u1 = _axis_weights(x, x0f, hf, nf, pf, lof, hif, bf, smif, smaf)
+    idx[p, 4 * a] = i0
+    idx[p, 4 * a + 1] = i1
+    idx[p, 4 * a + 2] = j0
+    idx[p, 4 * a + 3] = j1
+    wf[p, 2 * a] = v1
+    wf[p, 2 * a + 1] = u1
+
+
 @parallel_kernel
 def _compact_weights_kernel(pos, fpar, ipar, idx, wf):
     """Per particle (each its own slot), for each axis a: ``idx[p, 4a:4a+4]`` = (centre i0,
@@ -398,33 +420,12 @@ def _compact_weights_kernel(pos, fpar, ipar, idx, wf):
     nf1 = ipar[2, 1, 0]; pf1 = ipar[2, 1, 1]; lof1 = ipar[2, 1, 2]; hif1 = ipar[2, 1, 3]; bf1 = ipar[2, 1, 4]
     nf2 = ipar[3, 2, 0]; pf2 = ipar[3, 2, 1]; lof2 = ipar[3, 2, 2]; hif2 = ipar[3, 2, 3]; bf2 = ipar[3, 2, 4]
     for p in prange(pos.shape[0]):
-        x = pos[p, 0]
-        b, i0, i1, v0, v1 = _axis_weights(x, x0c0, hc0, nc0, pc0, loc0, hic0, bc0, smic0, smac0)
-        b, j0, j1, u0, u1 = _axis_weights(x, x0f0, hf0, nf0, pf0, lof0, hif0, bf0, smif0, smaf0)
-        idx[p, 0] = i0
-        idx[p, 1] = i1
-        idx[p, 2] = j0
-        idx[p, 3] = j1
-        wf[p, 0] = v1
-        wf[p, 1] = u1
-        x = pos[p, 1]
-        b, i0, i1, v0, v1 = _axis_weights(x, x0c1, hc1, nc1, pc1, loc1, hic1, bc1, smic1, smac1)
-        b, j0, j1, u0, u1 = _axis_weights(x, x0f1, hf1, nf1, pf1, lof1, hif1, bf1, smif1, smaf1)
-        idx[p, 4] = i0
-        idx[p, 5] = i1
-        idx[p, 6] = j0
-        idx[p, 7] = j1
-        wf[p, 2] = v1
-        wf[p, 3] = u1
-        x = pos[p, 2]
-        b, i0, i1, v0, v1 = _axis_weights(x, x0c2, hc2, nc2, pc2, loc2, hic2, bc2, smic2, smac2)
-        b, j0, j1, u0, u1 = _axis_weights(x, x0f2, hf2, nf2, pf2, lof2, hif2, bf2, smif2, smaf2)
-        idx[p, 8] = i0
-        idx[p, 9] = i1
-        idx[p, 10] = j0
-        idx[p, 11] = j1
-        wf[p, 4] = v1
-        wf[p, 5] = u1
+        _store_axis(idx, wf, p, 0, pos[p, 0], x0c0, hc0, nc0, pc0, loc0, hic0, bc0, smic0, smac0,
+                    x0f0, hf0, nf0, pf0, lof0, hif0, bf0, smif0, smaf0)
+        _store_axis(idx, wf, p, 1, pos[p, 1], x0c1, hc1, nc1, pc1, loc1, hic1, bc1, smic1, smac1,
+                    x0f1, hf1, nf1, pf1, lof1, hif1, bf1, smif1, smaf1)
+        _store_axis(idx, wf, p, 2, pos[p, 2], x0c2, hc2, nc2, pc2, loc2, hic2, bc2, smic2, smac2,
+                    x0f2, hf2, nf2, pf2, lof2, hif2, bf2, smif2, smaf2)
     return 0
 
 
@@ -818,7 +819,7 @@ class MappingPlan:
 
     def _nshape(self, location):
         """:func:`node_shape` of the plan's (already validated) grid."""
-        return tuple(n + (1 if location[a] == "f" else 0) for a, n in enumerate(self.spec.shape))
+        return _node_shape(self.spec.shape, location)
 
     @property
     def n(self) -> int:
