@@ -949,6 +949,12 @@ def _axis_transfer(widths, kinds, coarsen):
     return W, par, i1, i2, facf, dfac, w1, w2
 
 
+def _rb_order(n: int) -> np.ndarray:
+    """z index k held at each storage position of a z row of n cells: the even k, then the
+    odd k (red-black storage, :func:`_pk` is its inverse)."""
+    return np.concatenate([np.arange(0, n, 2), np.arange(1, n, 2)])
+
+
 class MGPressureSolver:
     """``A = -div(a grad)`` on a grid's cells, solved by multigrid-preconditioned CG.
 
@@ -1059,8 +1065,8 @@ class MGPressureSolver:
                 self._AXF[3, d, o:o + n] = w2
                 if d == 2:
                     m = W.size
-                    kf = np.concatenate([np.arange(0, n, 2), np.arange(1, n, 2)])  # k at each position
-                    pos_c = np.concatenate([np.arange(0, m, 2), np.arange(1, m, 2)])
+                    kf = _rb_order(n)  # k at each position
+                    pos_c = _rb_order(m)
                     cpos = np.empty(m, dtype=np.int64)
                     cpos[pos_c] = np.arange(m)  # coarse K -> its storage position
                     self._AXI[3, d, o:o + n] = cpos[i1[kf]]
@@ -1106,7 +1112,7 @@ class MGPressureSolver:
         every z row holds its even k first, then its odd k (module doc, "Storage")."""
         nx, ny, nz = self.shapes[level]
         h = (nz + 1) // 2
-        k = np.concatenate([np.arange(0, nz, 2), np.arange(1, nz, 2)])
+        k = _rb_order(nz)
         assert k.size == nz and (nz == 0 or np.count_nonzero(k % 2 == 0) == h)
         rows = np.arange(nx * ny, dtype=np.int64)[:, None] * nz
         return (rows + k[None, :]).ravel()
