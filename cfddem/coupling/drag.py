@@ -127,19 +127,10 @@ def beetstra(eps, re):
 @parallel_kernel
 def _beetstra_rest(e, r, rs, r657, ex, out):
     """:func:`beetstra` from the powers ``rs = Re^((1 + 4 phi)/2)``, ``r657 = Re^0.657`` and
-    ``ex = 10^(3 phi)``, each value its own slot, the operations in the order of the formula
-    (the inertial term 0 where Re <= 0)."""
+    ``ex = 10^(3 phi)``, each value its own slot (:func:`_beetstra_from_powers`; the inertial
+    term 0 where Re <= 0)."""
     for p in prange(out.shape[0]):
-        eps = e[p]
-        re = r[p]
-        phi = 1.0 - eps
-        e2 = eps * eps
-        f = 10.0 * phi / e2 + e2 * (1.0 + 1.5 * np.sqrt(phi))
-        inert = 0.0
-        if re > 0.0:
-            num = re / eps + 3.0 * eps * phi * re + 8.4 * r657[p]
-            inert = 0.413 / (24.0 * e2) * num * rs[p] / (rs[p] + ex[p])
-        out[p] = f + inert
+        out[p] = _beetstra_from_powers(e[p], r[p], rs[p], r657[p], ex[p])
     return 0
 
 
@@ -320,13 +311,25 @@ def closure_id(name) -> int:
 @kernel(inline="always")
 def beetstra_scalar(eps, re):
     """Scalar twin of :func:`beetstra`."""
+    if re > 0.0:
+        phi = 1.0 - eps
+        return _beetstra_from_powers(eps, re, re ** (0.5 + 2.0 * phi), re**0.657,
+                                     np.exp(6.907755278982138 * phi))  # 10^(3 phi)
+    return _beetstra_from_powers(eps, re, 0.0, 0.0, 0.0)
+
+
+@kernel(inline="always")
+def _beetstra_from_powers(eps, re, rs, r657, ex):
+    """Beetstra's F from the powers ``rs = Re^((1 + 4 phi)/2)``, ``r657 = Re^0.657`` and
+    ``ex = 10^(3 phi)`` (not read where Re <= 0: the inertial term is 0 there), the
+    operations in the order of the formula; shared by :func:`beetstra` (numpy powers) and
+    :func:`beetstra_scalar`."""
     phi = 1.0 - eps
     e2 = eps * eps
     f = 10.0 * phi / e2 + e2 * (1.0 + 1.5 * np.sqrt(phi))
     if re > 0.0:
-        rs = re ** (0.5 + 2.0 * phi)
-        num = re / eps + 3.0 * eps * phi * re + 8.4 * re**0.657
-        f += 0.413 / (24.0 * e2) * num * rs / (rs + np.exp(6.907755278982138 * phi))  # 10^(3 phi)
+        num = re / eps + 3.0 * eps * phi * re + 8.4 * r657
+        f += 0.413 / (24.0 * e2) * num * rs / (rs + ex)
     return f
 
 
