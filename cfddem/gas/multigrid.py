@@ -796,6 +796,14 @@ def _pxpby(y, x, b, nx, m):
 
 
 @parallel_kernel
+def _pscale(x, a, nx, m):
+    """x = a x."""
+    for i in prange(nx):
+        for c in range(i * m, (i + 1) * m):
+            x[U(c)] *= a
+
+
+@parallel_kernel
 def _pshift(z, s, nx, m):
     for i in prange(nx):
         for c in range(i * m, (i + 1) * m):
@@ -823,8 +831,10 @@ def _psum(part, n):
 @kernel
 def _pcg(LV, LF, AOFF, AXI, AXF, cE, cN, cT, dg, vE, vN, vT, vdg, vidg, dense, xl, bl, rl, t1, t2, dw, qw, nu, deg,
          lmin, singular, tol, maxiter,
-         bvec, xvec, r, z, p, q, part, ones, atol):
-    """Multigrid-preconditioned CG on level 0: A xvec = bvec, from the initial xvec.
+         bvec, xvec, r, z, p, q, part, ones, atol, scale_x0):
+    """Multigrid-preconditioned CG on level 0: A xvec = bvec, from the initial xvec
+    (``scale_x0``: from ``a xvec``, a = xvec.b / xvec.A xvec, the multiple of xvec closest to
+    the solution in the A-norm, 0 if xvec.A xvec is not positive).
 
     Stops when the true residual ``||b - A x|| <= max(tol ||b||, atol)`` (the recursive residual is
     checked each iteration; on apparent convergence the true one is computed and CG
@@ -841,6 +851,14 @@ def _pcg(LV, LF, AOFF, AXI, AXF, cE, cN, cT, dg, vE, vN, vT, vdg, vidg, dense, x
         for c in range(n):
             xvec[c] = 0.0
         return 0, 0.0
+    if scale_x0:
+        _apply_par(nx, ny, nz, 0, cE, cN, cT, dg, xvec, xvec, q, 0, 2, part)
+        xax = _psum(part, nx)
+        _pdot(xvec, bvec, nx, m, part)
+        a = _psum(part, nx) / xax if xax > 0.0 else 0.0
+        if not np.isfinite(a):
+            a = 0.0
+        _pscale(xvec, a, nx, m)
     its = 0
     rel = 0.0
     thr = max(tol * bn, atol)
@@ -878,6 +896,49 @@ def _pcg(LV, LF, AOFF, AXI, AXF, cE, cN, cT, dg, vE, vN, vT, vdg, vidg, dense, x
             beta = rz2 / rz
             rz = rz2
             _pxpby(p, z, beta, nx, m)
+
+
+@kernel
+def _to_storage(src, dst, nrows, nz, scale):
+    """dst = scale * src from C order to the red-black storage order of level 0 (each z row:
+    the even k, then the odd k; :func:`_pk`), without an index array."""
+    h = (nz + 1) // 2
+    for r in range(nrows):
+        o = r * nz
+        for m in range(h):
+            dst[U(o + m)] = src[U(o + 2 * m)] * scale
+        for m in range(nz - h):
+            dst[U(o + h + m)] = src[U(o + 2 * m + 1)] * scale
+
+
+@kernel
+def _from_storage(src, dst, nrows, nz):
+    """The inverse of :func:`_to_storage` (scale 1); returns whether every entry is finite."""
+    h = (nz + 1) // 2
+    finite = True
+    for r in range(nrows):
+        o = r * nz
+        for m in range(h):
+            v = src[U(o + m)]
+            dst[U(o + 2 * m)] = v
+            finite &= v - v == 0.0
+        for m in range(nz - h):
+            v = src[U(o + h + m)]
+            dst[U(o + 2 * m + 1)] = v
+            finite &= v - v == 0.0
+    return finite
+
+
+@kernel
+def _compare_store(a, last):
+    """last[:] = a; returns whether any entry differed (NaN always differs)."""
+    changed = False
+    for c in range(a.size):
+        v = a[c]
+        if not v == last[c]:
+            changed = True
+        last[c] = v
+    return changed
 
 
 # ------------------------------------------------------------------------------------------
@@ -1139,8 +1200,10 @@ class MGPressureSolver:
                 raise ValueError(f"coefficient shape {a.shape}, expected {s}")
         A = [np.ascontiguousarray(a, dtype=np.float64) for a in (ax, ay, az)]
         # the same coefficients as the last successful set-up (a particle-free or frozen
-        # porosity at a fixed dt): nothing to rebuild (NaN never compares equal)
-        if self._ready and all(np.array_equal(a, o) for a, o in zip(A, self._last)):
+        # porosity at a fixed dt): nothing to rebuild (NaN never compares equal); the
+        # comparison also stores the new coefficients (one compiled pass per array)
+        changed = [_compare_store(a.reshape(-1), o.reshape(-1)) for a, o in zip(A, self._last)]
+        if self._ready and not any(changed):
             self.n_setups_skipped += 1
             return
         _fine_coefficients(A[0], A[1], A[2], self._sc, self._dirich, self._periodic,
@@ -1150,8 +1213,6 @@ class MGPressureSolver:
                                    self._dense, self.singular, self.omega, *self._v, self._vdense,
                                    self.precision == "single")
         self._ready = flag == 0
-        for a, o in zip(A, self._last):
-            o[...] = a
 
     # interface of PressureSolver's hierarchy reuse (nothing to reuse here)
     def needs_rebuild(self) -> bool:
@@ -1190,33 +1251,40 @@ class MGPressureSolver:
         out[self._perm] = z
         return out
 
-    def solve(self, b: np.ndarray, x0: np.ndarray | None = None, atol: float = 0.0) -> tuple:
+    def solve(self, b: np.ndarray, x0: np.ndarray | None = None, atol: float = 0.0, scale_x0: bool = False) -> tuple:
         """Solve A phi = b (b of shape (nx,ny,nz)); returns (phi, SolveInfo).
 
         Converged when ``||b - A phi||_2 <= max(tol ||b||_2, atol)`` (true residual, the
         operator of :meth:`apply`; ``atol`` an absolute bound in the units of b, 0 by
-        default: the relative criterion alone)."""
+        default: the relative criterion alone).  CG starts from x0 (zero if None), or with
+        ``scale_x0`` from the multiple ``a x0`` closest to the solution in the A-norm
+        (``a = x0.b / x0.A x0``: one matrix-vector product)."""
         if not self._ready:
             return np.full(self.grid.shape, np.nan), SolveInfo(0, np.inf, False, False, 0.0)
         bv, xv, r, z, p, q = self._vec
-        np.take(np.ravel(b), self._perm, out=bv)  # to the solver's storage order
+        nx, ny, nz = self.grid.shape
+        b = np.ascontiguousarray(b, dtype=np.float64).reshape(-1)
         compat = 0.0
         if self.singular:
+            _to_storage(b, bv, nx * ny, nz, 1.0)  # to the solver's storage order
             compat = float(bv.mean())
             bv -= compat
-        bv *= self._vol
+            bv *= self._vol
+        else:
+            _to_storage(b, bv, nx * ny, nz, self._vol)
         if x0 is None:
             xv[:] = 0.0
         else:
-            np.take(np.ravel(x0), self._perm, out=xv)
+            _to_storage(np.ascontiguousarray(x0, dtype=np.float64).reshape(-1), xv, nx * ny, nz, 1.0)
         its, rel = _pcg(self._LV, self._LF, self._AOFF, self._AXI, self._vAXF, self._cE, self._cN, self._cT,
                         self._dg, *self._v, self._vdense, self._xl, self._bl, self._rl, self._t1, self._t2, self._dw,
                         self._qw, self.nu, self.chebyshev, 2.0 / self.cheb_ratio, self.singular, self.tol,
-                        self.maxiter, bv, xv, r, z, p, q, self._part, self._ones, float(atol) * self._vol)
+                        self.maxiter, bv, xv, r, z, p, q, self._part, self._ones, float(atol) * self._vol,
+                        bool(scale_x0 and x0 is not None))
         x = np.empty(self.N)
-        x[self._perm] = xv  # back to C order
+        finite = _from_storage(xv, x, nx * ny, nz)  # back to C order
         if self.singular:
             x -= x.mean()
         bnorm = float(np.sqrt(np.dot(bv, bv))) / self._vol
-        converged = bool(np.isfinite(rel) and (rel <= self.tol or rel * bnorm <= atol * (1.0 + 1e-12)) and np.all(np.isfinite(x)))
+        converged = bool(np.isfinite(rel) and (rel <= self.tol or rel * bnorm <= atol * (1.0 + 1e-12)) and finite)
         return x.reshape(self.grid.shape), SolveInfo(int(its), float(rel), converged, False, compat)
