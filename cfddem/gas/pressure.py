@@ -238,8 +238,10 @@ class PressureSolver:
         """A phi for phi of shape (nx, ny, nz)."""
         return (self.A @ phi.ravel()).reshape(self.grid.shape)
 
-    def solve(self, b: np.ndarray, x0: np.ndarray | None = None) -> tuple:
-        """Solve A phi = b (b of shape (nx,ny,nz)); returns (phi, SolveInfo)."""
+    def solve(self, b: np.ndarray, x0: np.ndarray | None = None, scale_x0: bool = False) -> tuple:
+        """Solve A phi = b (b of shape (nx,ny,nz)); returns (phi, SolveInfo).  CG starts from
+        x0 (zero if None), or with ``scale_x0`` from ``a x0``, ``a = x0.b / x0.A x0`` (the
+        multiple of x0 closest to the solution in the A-norm; 0 if x0.A x0 is not positive)."""
         rebuilt = False
         if self.needs_rebuild():
             self.rebuild()
@@ -251,6 +253,10 @@ class PressureSolver:
             rhs -= compat
         bnorm = float(np.linalg.norm(rhs))
         x = np.zeros(self.N) if x0 is None else np.ascontiguousarray(x0, dtype=np.float64).ravel().copy()
+        if scale_x0 and x0 is not None:
+            xax = float(x @ (self.A @ x))
+            a = float(x @ rhs) / xax if xax > 0.0 else 0.0
+            x *= a if np.isfinite(a) else 0.0
         if bnorm == 0.0:
             return np.zeros(self.grid.shape), SolveInfo(0, 0.0, True, rebuilt, compat)
         res = []

@@ -93,6 +93,14 @@ class GasSolver:
         Default 1: on the chute grids the threaded kernels cost more than they save (the
         coupled 16 rpm chute on 16 x 8 x 150, 2 threads, idle machine: 8.3 ms per gas step
         threaded against 6.2 ms serial); results are identical for any count.
+    initial_guess: the pressure solve's first iterate. "scaled" (default): the last pressure
+        increment times ``a = phi.b / phi.A phi``, the multiple of it closest to the new
+        solution in the A-norm (never farther than the increment itself or zero); "previous":
+        the last increment as it is; "zero".  In the coupled chute the increments of
+        successive gas steps are anti-correlated (the sluice feeds a lattice layer every 5 gas
+        steps, and each pulse is undone in the next step): the plain previous increment starts
+        CG from a residual 1.7x ||b||, worse than zero, and costs 0.7 more iterations per
+        solve than the scaled one (docs/gas.md, "Round 7").
     viscosity: "explicit" (forward Euler, viscous step limit) or "implicit" (semi-implicit:
     backward Euler for the Laplacian part of the stress divergence, the cross-derivative
     remainder explicit; solved per component by Jacobi-preconditioned CG to
@@ -104,7 +112,7 @@ class GasSolver:
                  advection: str = "tvd", tol: float = 1e-8, maxiter: int = 200, lambda_bulk: float = 0.0,
                  rebuild_threshold: float = float("inf"), cfl_max: float = 0.5, viscosity: str = "explicit",
                  viscous_tol: float = 1e-10, viscous_maxiter: int = 500, pressure_solver: str = "mg",
-                 defect_tol: float = 1e-10, threads: int | None = 1):
+                 defect_tol: float = 1e-10, threads: int | None = 1, initial_guess: str = "scaled"):
         if rho <= 0:
             raise CaseError("gas.rho", f"must be positive, got {rho}")
         if mu < 0:
@@ -115,6 +123,9 @@ class GasSolver:
             raise CaseError("gas.pressure_solver", f"'mg' or 'amg', got {pressure_solver!r}")
         if advection not in ("tvd", "central"):
             raise CaseError("gas.advection", f"'tvd' or 'central', got {advection!r}")
+        if initial_guess not in ("scaled", "previous", "zero"):
+            raise CaseError("gas.initial_guess", f"'scaled', 'previous' or 'zero', got {initial_guess!r}")
+        self.initial_guess = initial_guess
         if not defect_tol >= 0:
             raise CaseError("gas.defect_tol", f"must be >= 0, got {defect_tol}")
         if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
@@ -266,7 +277,7 @@ class GasSolver:
         S = self._face_arrays(source, "gas.source")
         K = self._face_arrays(drag_K, "gas.drag_K")
         Up = self._face_arrays(drag_Up, "gas.drag_Up")
-        if K is not None and any(np.any(k < 0) for k in K):
+        if K is not None and any(float(np.min(k)) < 0.0 for k in K):  # a reduction, no temporary
             raise CaseError("gas.drag_K", "must be >= 0")
         if K is not None and Up is None:
             raise CaseError("gas.drag_Up", "needed with drag_K")
@@ -322,9 +333,10 @@ class GasSolver:
             # mass-balance stop: after the correction the defect of a cell is
             # dt^2/rho |r_c| <= dt^2/rho ||r||_2 (r = b - A phi, unscaled), so
             # ||r||_2 <= defect_tol rho/dt^2 guarantees max defect <= defect_tol
-            phi, sinfo = self.psolver.solve(self._b, x0=self._phi, atol=self.defect_tol * rho / (dt * dt))
+            phi, sinfo = self.psolver.solve(self._b, x0=self._x0(), atol=self.defect_tol * rho / (dt * dt),
+                                            scale_x0=self.initial_guess == "scaled")
         else:
-            phi, sinfo = self.psolver.solve(self._b, x0=self._phi)
+            phi, sinfo = self.psolver.solve(self._b, x0=self._x0(), scale_x0=self.initial_guess == "scaled")
         self._phi = phi
         # --- 3. correction ----------------------------------------------------------------
         ci = grid.interior("ccc")
@@ -361,6 +373,11 @@ class GasSolver:
         self.last_info = GasStepInfo(sinfo.iterations, sinfo.residual, cfl, self._last_div, ok, msg,
                                      sinfo.rebuilt, sinfo.compatibility, viscous_iters)
         return self.last_info
+
+    def _x0(self):
+        """The pressure solve's initial iterate: the last increment (``initial_guess``
+        "previous", or "scaled": the solver scales it), or zero."""
+        return None if self.initial_guess == "zero" else self._phi
 
     def _implicit_viscous(self, c, sl, numer, den, eo, dt, face_range):
         """Solve ``den u* - dt L(u*) = numer - dt L(u^n)`` for component c on the updated

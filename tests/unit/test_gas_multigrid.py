@@ -270,3 +270,35 @@ def test_setup_is_skipped_only_for_identical_coefficients():
         assert mg.n_setups_skipped == 1
         phi, info = mg.solve(np.ones(g.shape))
         assert not info.converged
+
+
+@pytest.mark.parametrize("solver,case", [("mg", 0), ("mg", 4), ("amg", 0)])  # amg solves case 4 (480 cells) at once
+def test_scaled_initial_guess_is_the_best_multiple_of_x0(solver, case):
+    """``scale_x0``: CG starts from a x0 with a = x0.b / x0.A x0.  A multiple of the solution
+    (-2 phi) is then scaled back to phi itself, so the solve stops at once, where the
+    unscaled start needs iterations; from an unrelated x0 the scaled start is never farther
+    from the solution in the A-norm than x0 or zero, and the result is the same solution."""
+    shape, pbc = CASES[case]
+    g, co, rng = random_system(shape, (0.05, 0.04, 0.07), pbc, seed=11)
+    s = (MGPressureSolver(g, pbc, tol=1e-9) if solver == "mg" else PressureSolver(g, pbc, tol=1e-9))
+    s.set_coefficients(*co)
+    b = rng.standard_normal(shape)
+    if s.singular:
+        b -= b.mean()
+    phi, info = s.solve(b)
+    assert info.converged and info.iterations > 2
+    _, plain = s.solve(b, x0=-2.0 * phi)
+    again, scaled = s.solve(b, x0=-2.0 * phi, scale_x0=True)
+    assert plain.iterations > 2 and scaled.iterations <= 1 and scaled.converged
+    np.testing.assert_allclose(again, phi, atol=1e-7 * np.abs(phi).max())
+
+    def a_err(x):  # A-norm of the error (A phi = b)
+        e = (x - phi).ravel()
+        return float(e @ s.apply(x - phi).ravel())
+
+    x0 = rng.standard_normal(shape)
+    a = float(x0.ravel() @ b.ravel()) / float(x0.ravel() @ s.apply(x0).ravel())
+    assert a_err(a * x0) <= min(a_err(x0), a_err(np.zeros(shape)))
+    out, info = s.solve(b, x0=x0, scale_x0=True)
+    assert info.converged
+    np.testing.assert_allclose(out, phi, atol=1e-6 * np.abs(phi).max())
