@@ -33,6 +33,18 @@ Usage: python benchmarks/gas_step.py [--steps 20] [--repeats 3] [--threads 1,2] 
            mg, chute grids 16x15x150 and 16x8x150, 1 thread unless --threads is given: each
            count in its own processes), and prints ranges and the old/new ratio;
            ``--particles CHECKPOINT`` adds the particle step of the chute (no gas, 1 thread)
+       python benchmarks/gas_step.py --record CHECKPOINT FILE [--grid 16x15x150] [--interval 10]
+                                     [--steps 40] [--warm 100]
+           runs the coupled 16 rpm chute (cases/chute_16rpm) from a developed checkpoint with
+           the gas grid and coupling interval given, skips ``--warm`` gas steps (the gas starts
+           from rest when the checkpoint's gas grid differs) and writes the gas solver's state
+           and the inputs of the next ``--steps`` gas steps (porosity, drag K and U_p, source,
+           dt) to FILE (.npz, about 3 MB per step on 16 x 15 x 150)
+       python benchmarks/gas_step.py --replay FILE [--repeats 3] [--threads 1]
+           times GasSolver.step on those recorded inputs (the real workload: the porosity of
+           the moving particles and the sluice feed, instead of the synthetic bed's white
+           noise) for each initial guess of the pressure solve; with --compare DIR the
+           replay alternates between the package in DIR and the current one (one process each)
 """
 
 from __future__ import annotations
@@ -328,9 +340,147 @@ def defect_sweep(steps):
                   f"(max {max(its)}), max mass-balance defect per step {max(d):.1e}")
 
 
+def record(checkpoint, out, grid="16x15x150", interval=10, steps=40, warm=100):
+    """Run the coupled chute from ``checkpoint`` and store the gas solver's state before the
+    gas step ``warm`` and the inputs of ``steps`` gas steps from there (see the module doc)."""
+    import cfddem.gas.solver as gsm
+    from cfddem.config import load_case
+    from cfddem.io.checkpoint import read_checkpoint
+    from cfddem.simulation import Simulation
+    import tempfile
+    repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    case_dir = os.path.join(repo, "cases", "chute_16rpm")
+    t0 = float(read_checkpoint(checkpoint)["clock"]["time"])
+    cells = "[" + ",".join(grid.split("x")) + "]"
+    ov = ["measurements.enabled=false", "output.vtk=false", "output.snapshot_interval=100.0",
+          "output.series_interval=100.0", "checkpoint.wall_interval=0", "study.compare_without_gas=false",
+          f"checkpoint.start_from={os.path.abspath(checkpoint)}", f"gas.cells={cells}",
+          f"gas.coupling_interval={interval}"]
+    dt = float(load_case(case_dir, overrides=ov).time.dt)
+    ov.append(f"time.end_time={t0 + (warm + steps + 0.5) * interval * dt!r}")
+    case = load_case(case_dir, overrides=ov)
+    data, count = {}, [0]
+    orig = gsm.GasSolver.step
+
+    def step(self, dt, *, source=None, drag_K=None, drag_Up=None):
+        i = count[0] - warm
+        count[0] += 1
+        if i == 0:
+            data.update({"state_" + k: np.asarray(v) for k, v in self.get_state().items()
+                         if k not in ("amg_reference_coefficients", "amg_reuse")})
+        if 0 <= i < steps:
+            data[f"dt_{i}"] = np.float64(dt)
+            data[f"eps_{i}"] = self.eps.interior.copy()
+            for name, arrs in (("S", source), ("K", drag_K), ("Up", drag_Up)):
+                if arrs is not None:
+                    for c in range(3):
+                        data[f"{name}{c}_{i}"] = np.array(arrs[c], copy=True)
+        return orig(self, dt, source=source, drag_K=drag_K, drag_Up=drag_Up)
+
+    gsm.GasSolver.step = step
+    try:
+        with tempfile.TemporaryDirectory(prefix="gas_record_") as tmp:
+            Simulation(case, tmp, overwrite=True).run()
+    finally:
+        gsm.GasSolver.step = orig
+    n = sum(1 for k in data if k.startswith("dt_"))
+    data.update(grid=np.array(grid), interval=np.int64(interval), steps=np.int64(n), checkpoint=np.array(checkpoint))
+    np.savez(out, **data)
+    print(f"recorded {n} gas steps of the coupled chute ({grid}, gas every {interval} particle steps, "
+          f"after {warm} warm-up gas steps from t = {t0:.4f} s) to {out}")
+
+
+def replay_solver(rec, guess="scaled"):
+    """A GasSolver of the chute case on the recorded grid, in the recorded state."""
+    from cfddem.config import load_case
+    from cfddem.coupling.exchange import _chute_setup
+    repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    cells = "[" + ",".join(str(rec["grid"]).split("x")) + "]"
+    case = load_case(os.path.join(repo, "cases", "chute_16rpm"), overrides=[f"gas.cells={cells}"])
+    grid, bcs, g, om, ap, _ = _chute_setup(case)
+    kw = {} if guess is None else {"initial_guess": guess}
+    s = GasSolver(grid, rho=case.gas.density, mu=case.gas.viscosity, bcs=bcs, gravity=tuple(g), omega=tuple(om),
+                  axis_point=ap, pressure_solver=case.gas.pressure_solver, **kw)
+    st = {k[6:]: rec[k] for k in rec.files if k.startswith("state_")}
+    st["amg_reference_coefficients"] = None
+    s.set_state(st)
+    return s
+
+
+def replay_once(rec, guess="scaled", warm=3):
+    """Time the recorded gas steps once (the first ``warm`` untimed); returns per-step means."""
+    n = int(rec["steps"])
+    arrs = {k: rec[k] for k in rec.files}  # loaded once, outside the timing
+
+    def inputs(i):
+        get = (lambda name: tuple(arrs[f"{name}{c}_{i}"] for c in range(3)) if f"{name}0_{i}" in arrs else None)
+        return float(arrs[f"dt_{i}"]), arrs[f"eps_{i}"], get("S"), get("K"), get("Up")
+
+    s = replay_solver(rec, guess)
+    its, wall, cpu, defect = [], 0.0, 0.0, 0.0
+    for i in range(n):
+        dt, eps, S, K, Up = inputs(i)
+        w0, c0 = time.perf_counter(), time.process_time()
+        s.set_porosity(eps)
+        info = s.step(dt, source=S, drag_K=K, drag_Up=Up)
+        if i >= warm:
+            wall += time.perf_counter() - w0
+            cpu += time.process_time() - c0
+            its.append(info.pressure_iterations)
+            defect = max(defect, info.max_divergence)
+        if not info.ok:
+            raise SystemExit(f"replayed gas step {i} failed: {info.message}")
+    m = max(n - warm, 1)
+    return dict(wall=wall / m * 1e3, cpu=cpu / m * 1e3, its=float(np.mean(its)), maxits=int(max(its)), defect=defect,
+                steps=m)
+
+
+def replay(path, repeats, guesses=("scaled", "previous", "zero"), json_out=False):
+    rec = np.load(path)
+    res = {g: [] for g in guesses}
+    for _ in range(repeats):
+        for g in guesses:
+            res[g].append(replay_once(rec, g))
+    for g in guesses:
+        r = res[g]
+        print(f"replay {str(rec['grid']):>10s} guess {str(g):>8s}: CPU {fmt_range([x['cpu'] for x in r], 10)} ms/step, "
+              f"wall {fmt_range([x['wall'] for x in r], 10)} ms; pressure iterations {r[0]['its']:.2f} "
+              f"(max {r[0]['maxits']}), mass defect {r[0]['defect']:.1e} ({r[0]['steps']} steps)")
+    if json_out:
+        import json
+        print(json.dumps({str(g): v for g, v in res.items()}))
+    return res
+
+
+def compare_replay(old_dir, path, repeats, threads="1"):
+    """Alternate replays of ``path`` with the package in ``old_dir`` (its default initial
+    guess) and the current one (default), one process each; print ranges and old/new."""
+    import json
+    import subprocess
+    import sys
+    repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    res = {"old": [], "new": []}
+    for _ in range(repeats):
+        for tag, pkg in (("old", old_dir), ("new", repo)):
+            env = dict(os.environ, PYTHONPATH=pkg)
+            if tag == "old":
+                env["NUMBA_CACHE_DIR"] = os.environ.get("NUMBA_CACHE_DIR", "/tmp/numba_cache") + "_compare_old"
+            out = subprocess.run([sys.executable, os.path.abspath(__file__), "--replay", os.path.abspath(path),
+                                  "--repeats", "1", "--threads", threads, "--default-guess", "--json"], env=env,
+                                 cwd="/tmp", capture_output=True, text=True, check=True).stdout
+            res[tag].append(json.loads(out.strip().splitlines()[-1])["None"][0])
+    for tag in ("old", "new"):
+        r = res[tag]
+        print(f"replay {tag}: CPU {fmt_range([x['cpu'] for x in r], 10)} ms/step, wall {fmt_range([x['wall'] for x in r], 10)} "
+              f"ms; pressure iterations {r[0]['its']:.2f} (max {r[0]['maxits']}), mass defect {r[0]['defect']:.1e}")
+    rc = [o["cpu"] / n["cpu"] for o, n in zip(res["old"], res["new"])]
+    rw = [o["wall"] / n["wall"] for o, n in zip(res["old"], res["new"])]
+    print(f"replay old/new: CPU x{fmt_range(rc, 4, 2)}, wall x{fmt_range(rw, 4, 2)}")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--steps", type=int, default=20)
+    ap.add_argument("--steps", type=int, default=None, help="timed steps (default 20; --record: 40 recorded)")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--threads", default=None,
                     help="numba thread counts for mg, comma-separated (amg: the first); default 1,2 (--compare: 1)")
@@ -347,7 +497,26 @@ def main(argv=None):
     ap.add_argument("--particles", metavar="CHECKPOINT",
                     help="with --compare: also time the particle step of the chute (no gas, 1 thread) from this "
                          "developed checkpoint (copied), to 1.76 s")
+    ap.add_argument("--record", nargs=2, metavar=("CHECKPOINT", "FILE"),
+                    help="record the gas steps of the coupled chute from CHECKPOINT into FILE")
+    ap.add_argument("--interval", type=int, default=10, help="--record: gas coupling interval (particle steps)")
+    ap.add_argument("--warm", type=int, default=100, help="--record: gas steps skipped before recording")
+    ap.add_argument("--replay", metavar="FILE", help="time the gas steps recorded in FILE")
+    ap.add_argument("--default-guess", action="store_true",
+                    help="--replay: only the solver's default initial guess (used by --compare)")
     a = ap.parse_args(argv)
+    if a.record:
+        set_threads(int((a.threads or "1").split(",")[0]))
+        record(a.record[0], a.record[1], a.grid or "16x15x150", a.interval, a.steps or 40, a.warm)
+        return
+    if a.replay and a.compare:
+        compare_replay(a.compare, a.replay, a.repeats, a.threads or "1")
+        return
+    if a.replay:
+        set_threads(int((a.threads or "1").split(",")[0]))
+        replay(a.replay, a.repeats, (None,) if a.default_guess else ("scaled", "previous", "zero"), a.json)
+        return
+    a.steps = a.steps or 20
     if a.compare:
         compare(a.compare, a.repeats, a.steps, tuple((a.grid or "16x15x150,16x8x150").split(",")),
                 a.threads or "1")
