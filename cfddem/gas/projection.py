@@ -84,15 +84,19 @@ def correction_kernel(u, phi, ratio, fac, g, di, dj, dk, lo, hi):
 
 
 @kernel
-def pressure_rhs_kernel(div, en, eo, dt, rho, g, b):
-    """Right-hand side of the pressure equation ``b = -(rho/dt) [div + (eps^{n+1} - eps^n)/dt]``
-    at the cells (b without halos); returns nothing."""
+def pressure_rhs_kernel(u, v, w, en, eo, rdx, rdy, rdz, dt, rho, g, b):
+    """Right-hand side of the pressure equation ``b = -(rho/dt) [div(eps_f u*) + (eps^{n+1} -
+    eps^n)/dt]`` at the cells (b without halos), the divergence from
+    :func:`cfddem.gas.operators.porous_divergence_at` (no divergence array: the same numbers
+    as :func:`cfddem.gas.operators.porous_divergence_kernel` followed by this formula)."""
     nx, ny, nz = b.shape
     f = -rho / dt
     for i in range(nx):
         for j in range(ny):
             for k in range(nz):
-                b[i, j, k] = f * (div[g + i, g + j, g + k] + (en[g + i, g + j, g + k] - eo[g + i, g + j, g + k]) / dt)
+                ia, ja, ka = g + i, g + j, g + k
+                d = porous_divergence_at(u, v, w, en, ia, ja, ka, rdx, rdy, rdz)
+                b[i, j, k] = f * (d + (en[ia, ja, ka] - eo[ia, ja, ka]) / dt)
 
 
 @kernel
@@ -108,19 +112,24 @@ def mass_defect_kernel(div, en, eo, dt, g, nx, ny, nz):
     return m * dt
 
 
-@kernel
-def max_abs_kernel(a, g, n0, n1, n2):
-    """max |a| over the interior entries a[g:g+n0, g:g+n1, g:g+n2]; NaN if any entry is NaN
-    (inf if any is infinite), so one pass gives both the Courant number and the finiteness
-    test."""
-    m = 0.0
-    for i in range(g, g + n0):
-        for j in range(g, g + n1):
-            for k in range(g, g + n2):
-                v = abs(a[U(i), U(j), U(k)])
-                if v > m or v != v:  # a NaN is kept (nothing compares greater than it)
-                    m = v
-    return m
+@kernel(inline="always")
+def _defect_at(u, v, w, en, eo, i, j, k, rdx, rdy, rdz, dt):
+    """|div(eps_f u) + (eps^{n+1} - eps^n)/dt| at cell (i, j, k) (array indices)."""
+    d = porous_divergence_at(u, v, w, en, i, j, k, rdx, rdy, rdz)
+    return abs(d + (en[i, j, k] - eo[i, j, k]) / dt)
+
+
+@kernel(inline="always")
+def _rate_at(u, v, w, i, j, k, rdx, rdy, rdz):
+    """``max(|u_W|, |u_E|)/dx + max(|v_S|, |v_N|)/dy + max(|w_B|, |w_T|)/dz`` of cell (i, j, k);
+    NaN if one of its six face velocities is NaN."""
+    if u[i, j, k] != u[i, j, k] or u[i + 1, j, k] != u[i + 1, j, k] or v[i, j, k] != v[i, j, k] \
+            or v[i, j + 1, k] != v[i, j + 1, k] or w[i, j, k] != w[i, j, k] or w[i, j, k + 1] != w[i, j, k + 1]:
+        return np.nan
+    a = max(abs(u[i, j, k]), abs(u[i + 1, j, k])) * rdx
+    b = max(abs(v[i, j, k]), abs(v[i, j + 1, k])) * rdy
+    c = max(abs(w[i, j, k]), abs(w[i, j, k + 1])) * rdz
+    return a + b + c
 
 
 @kernel
@@ -133,8 +142,7 @@ def divergence_defect_kernel(u, v, w, en, eo, rdx, rdy, rdz, dt, g, nx, ny, nz):
     for i in range(g, g + nx):
         for j in range(g, g + ny):
             for k in range(g, g + nz):
-                d = porous_divergence_at(u, v, w, en, i, j, k, rdx, rdy, rdz)
-                val = abs(d + (en[i, j, k] - eo[i, j, k]) / dt)
+                val = _defect_at(u, v, w, en, eo, i, j, k, rdx, rdy, rdz, dt)
                 if val > m or val != val:  # a NaN is kept (nothing compares greater than it)
                     m = val
     return m * dt
@@ -155,14 +163,33 @@ def local_advective_rate_kernel(u, v, w, rdx, rdy, rdz, g, nx, ny, nz):
     for i in range(g, g + nx):
         for j in range(g, g + ny):
             for k in range(g, g + nz):
-                a = max(abs(u[i, j, k]), abs(u[i + 1, j, k])) * rdx
-                b = max(abs(v[i, j, k]), abs(v[i, j + 1, k])) * rdy
-                c = max(abs(w[i, j, k]), abs(w[i, j, k + 1])) * rdz
-                r = a + b + c
-                if u[i, j, k] != u[i, j, k] or u[i + 1, j, k] != u[i + 1, j, k] or v[i, j, k] != v[i, j, k] \
-                        or v[i, j + 1, k] != v[i, j + 1, k] or w[i, j, k] != w[i, j, k] \
-                        or w[i, j, k + 1] != w[i, j, k + 1]:
+                r = _rate_at(u, v, w, i, j, k, rdx, rdy, rdz)
+                if r != r:
                     return np.nan
                 if r > m:
                     m = r
     return m
+
+
+@kernel
+def step_diagnostics_kernel(u, v, w, p, en, eo, rdx, rdy, rdz, dt, g, nx, ny, nz):
+    """The end-of-step numbers in one pass over the cells: (max mass-balance defect * dt as
+    :func:`divergence_defect_kernel`, the local advective rate as
+    :func:`local_advective_rate_kernel`, max |p| over the interior); each NaN if one of its
+    inputs is NaN (inf if one is infinite)."""
+    md = 0.0
+    mr = 0.0
+    mp = 0.0
+    for i in range(g, g + nx):
+        for j in range(g, g + ny):
+            for k in range(g, g + nz):
+                val = _defect_at(u, v, w, en, eo, i, j, k, rdx, rdy, rdz, dt)
+                if val > md or val != val:
+                    md = val
+                r = _rate_at(u, v, w, i, j, k, rdx, rdy, rdz)
+                if r > mr or r != r:
+                    mr = r
+                a = abs(p[i, j, k])
+                if a > mp or a != a:
+                    mp = a
+    return md * dt, mr, mp

@@ -41,9 +41,8 @@ from cfddem.gas.boundaries import BoundarySet
 from cfddem.gas.grid import Field, StaggeredGrid
 from cfddem.gas.momentum import momentum_rhs, viscous_laplacian
 from cfddem.gas.multigrid import MGPressureSolver
-from cfddem.gas.operators import porous_divergence_kernel
-from cfddem.gas.projection import (correction_kernel, divergence_defect_kernel, local_advective_rate_kernel,
-                                   max_abs_kernel, predictor_kernel, pressure_rhs_kernel)
+from cfddem.gas.projection import (correction_kernel, local_advective_rate_kernel, predictor_kernel, pressure_rhs_kernel,
+                                   step_diagnostics_kernel)
 from cfddem.gas.pressure import PressureSolver
 
 _LOC = ("fcc", "cfc", "ccf")
@@ -173,7 +172,6 @@ class GasSolver:
             self._upd_slice.append(tuple(sl))
         self._numer = [np.zeros(np.zeros(grid.array_shape(loc))[sl].shape) for loc, sl in zip(_LOC, self._upd_slice)]
         self._den = [np.zeros_like(a) for a in self._numer]
-        self._div = np.zeros(grid.array_shape("ccc"))
         self._b = np.zeros(grid.shape)
         self._phif = np.zeros(grid.array_shape("ccc"))
         self._rhs = [np.zeros(grid.array_shape(loc)) for loc in _LOC]
@@ -326,9 +324,7 @@ class GasSolver:
         self.psolver.set_coefficients(*coefs)
         nx, ny, nz = grid.shape
         dx, dy, dz = grid.spacing
-        div = self._div
-        porous_divergence_kernel(vel[0], vel[1], vel[2], en, 1.0 / dx, 1.0 / dy, 1.0 / dz, g, nx, ny, nz, div)
-        pressure_rhs_kernel(div, en, eo, dt, rho, g, self._b)
+        pressure_rhs_kernel(vel[0], vel[1], vel[2], en, eo, 1.0 / dx, 1.0 / dy, 1.0 / dz, dt, rho, g, self._b)
         if self.pressure_solver == "mg":
             # mass-balance stop: after the correction the defect of a cell is
             # dt^2/rho |r_c| <= dt^2/rho ||r||_2 (r = b - A phi, unscaled), so
@@ -350,18 +346,19 @@ class GasSolver:
         self.bc.fill_pressure(self.p.data)
         self.bc.fill_velocity(*vel)
         # --- diagnostics ------------------------------------------------------------------
-        # (one pass each: the divergence with the mass defect, the local Courant number)
-        self._last_div = float(divergence_defect_kernel(vel[0], vel[1], vel[2], en, eo, 1.0 / dx, 1.0 / dy, 1.0 / dz,
-                                                        dt, g, nx, ny, nz))
+        # one pass: the mass defect, the local Courant number (NaN or inf if a velocity is:
+        # the face sets are the same) and max |p| (finiteness)
+        defect, rate, pmax = step_diagnostics_kernel(vel[0], vel[1], vel[2], self.p.data, en, eo, 1.0 / dx, 1.0 / dy,
+                                                     1.0 / dz, dt, g, nx, ny, nz)
+        self._last_div = float(defect)
         np.copyto(self._eps_prev, en)
         self.time += dt
         self.step_count += 1
         self._last_dt = dt
-        # the local rate is NaN or inf if a velocity is (the face sets of both are the same)
-        cfl = dt * self._advective_rate()
-        ok, msg = True, ""
-        finite = bool(np.isfinite(cfl) and np.isfinite(self._max_abs(self.p)))
+        cfl = dt * float(rate)
+        finite = bool(np.isfinite(cfl) and np.isfinite(pmax))
         bad = "" if finite else self._first_nonfinite()
+        ok, msg = True, ""
         if bad:
             ok, msg = False, bad
         elif self._visc_fail:
@@ -432,10 +429,6 @@ class GasSolver:
         return ""
 
     # --- time-step limits -------------------------------------------------------------
-    def _max_abs(self, f: Field) -> float:
-        """max |f| over the interior (NaN if f holds a NaN), one compiled pass."""
-        return float(max_abs_kernel(f.data, self.grid.halo, *self.grid.interior_shape(f.location)))
-
     def _advective_rate(self) -> float:
         """max over cells of max(|u_W|,|u_E|)/dx + max(|v_S|,|v_N|)/dy + max(|w_B|,|w_T|)/dz,
         the local Courant number per unit time (:func:`~cfddem.gas.projection.local_advective_rate_kernel`;

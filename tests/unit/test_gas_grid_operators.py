@@ -136,3 +136,36 @@ def test_local_advective_rate_takes_each_cell_own_faces():
     assert local_advective_rate_kernel(u, v, w, rdx, rdy, rdz, g, nx, ny, nz) == r
     w[2, 2, 2] = np.nan
     assert np.isnan(local_advective_rate_kernel(u, v, w, rdx, rdy, rdz, g, nx, ny, nz))
+
+
+def test_fused_step_kernels_equal_the_separate_ones():
+    """The gas step's one-pass kernels give the numbers of the separate ones bit for bit: the
+    pressure right-hand side from the velocity (= porous divergence, then the formula), and
+    the end-of-step diagnostics (= mass defect, local advective rate, max |p|), NaN kept."""
+    from cfddem.gas.operators import porous_divergence_kernel
+    from cfddem.gas.projection import (divergence_defect_kernel, local_advective_rate_kernel, pressure_rhs_kernel,
+                                       step_diagnostics_kernel)
+
+    rng = np.random.default_rng(8)
+    g, (nx, ny, nz) = 2, (5, 4, 7)
+    shp = (nx + 2 * g, ny + 2 * g, nz + 2 * g)
+    u, v, w = (rng.normal(size=(shp[0] + (c == 0), shp[1] + (c == 1), shp[2] + (c == 2))) for c in range(3))
+    en, eo, p = rng.uniform(0.4, 1.0, shp), rng.uniform(0.4, 1.0, shp), rng.normal(size=shp)
+    p[0, 0, 0] = 1e9  # a halo entry: not counted
+    r = (1 / 0.1, 1 / 0.2, 1 / 0.3)
+    dt, rho = 1e-3, 1.2
+    div = np.zeros(shp)
+    porous_divergence_kernel(u, v, w, en, *r, g, nx, ny, nz, div)
+    ci = (slice(g, g + nx), slice(g, g + ny), slice(g, g + nz))
+    ref = (-rho / dt) * (div[ci] + (en[ci] - eo[ci]) / dt)
+    b = np.zeros((nx, ny, nz))
+    pressure_rhs_kernel(u, v, w, en, eo, *r, dt, rho, g, b)
+    assert np.array_equal(b, ref)
+    d, rate, pm = step_diagnostics_kernel(u, v, w, p, en, eo, *r, dt, g, nx, ny, nz)
+    assert d == divergence_defect_kernel(u, v, w, en, eo, *r, dt, g, nx, ny, nz) and d > 0
+    assert rate == local_advective_rate_kernel(u, v, w, *r, g, nx, ny, nz) and rate > 0
+    assert pm == np.max(np.abs(p[ci]))
+    w[3, 3, 4] = np.nan
+    p[3, 3, 3] = np.nan
+    d, rate, pm = step_diagnostics_kernel(u, v, w, p, en, eo, *r, dt, g, nx, ny, nz)
+    assert np.isnan(d) and np.isnan(rate) and np.isnan(pm)
