@@ -40,11 +40,13 @@ Usage: python benchmarks/gas_step.py [--steps 20] [--repeats 3] [--threads 1,2] 
            from rest when the checkpoint's gas grid differs) and writes the gas solver's state
            and the inputs of the next ``--steps`` gas steps (porosity, drag K and U_p, source,
            dt) to FILE (.npz, about 3 MB per step on 16 x 15 x 150)
-       python benchmarks/gas_step.py --replay FILE [--repeats 3] [--threads 1]
+       python benchmarks/gas_step.py --replay FILE [--repeats 3] [--threads 1] [--tol-sweep]
            times GasSolver.step on those recorded inputs (the real workload: the porosity of
            the moving particles and the sluice feed, instead of the synthetic bed's white
            noise) for each initial guess of the pressure solve; with --compare DIR the
-           replay alternates between the package in DIR and the current one (one process each)
+           replay alternates between the package in DIR and the current one (one process each);
+           with --tol-sweep: CPU, iterations, defect and the distance of the final gas
+           fields from a tol 1e-12 replay, for each pressure tolerance
 """
 
 from __future__ import annotations
@@ -435,6 +437,44 @@ def replay_once(rec, guess="scaled", warm=3):
                 steps=m)
 
 
+def replay_tol_sweep(path, tols=(1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-10), ref_tol=1e-12):
+    """Replay the recorded steps at each pressure tolerance: CPU, iterations, the largest
+    mass-balance defect, and how far the gas is after the recorded steps from the replay at
+    ``ref_tol`` (max |p - p_ref| and max |u - u_ref| over the interior, relative to the
+    reference's range, and max relative error of the pressure gradient on the faces: the
+    pressure force on the particles)."""
+    rec = np.load(path)
+    n = int(rec["steps"])
+    arrs = {k: rec[k] for k in rec.files}
+
+    def run_tol(tol):
+        s = replay_solver(rec)
+        s.psolver.tol = tol
+        its, defect, cpu = [], 0.0, 0.0
+        for i in range(n):
+            get = (lambda name: tuple(arrs[f"{name}{c}_{i}"] for c in range(3)) if f"{name}0_{i}" in arrs else None)
+            s.set_porosity(arrs[f"eps_{i}"])
+            c0 = time.process_time()
+            info = s.step(float(arrs[f"dt_{i}"]), source=get("S"), drag_K=get("K"), drag_Up=get("Up"))
+            cpu += time.process_time() - c0
+            its.append(info.pressure_iterations)
+            defect = max(defect, info.max_divergence)
+        grads = [np.diff(s.p.interior, axis=d) / s.grid.spacing[d] for d in range(3)]
+        return s, dict(cpu=cpu / n * 1e3, its=float(np.mean(its)), defect=defect, grads=grads)
+
+    ref, r0 = run_tol(ref_tol)
+    pr, ur = ref.p.interior, ref.cell_centred_velocity()
+    print(f"replay {str(rec['grid'])}: pressure tolerance against the replay at tol {ref_tol:g} "
+          f"({r0['its']:.2f} iterations), {n} recorded steps")
+    for tol in tols:
+        s, r = run_tol(tol)
+        dp = np.max(np.abs(s.p.interior - pr)) / np.ptp(pr)
+        du = np.max(np.abs(s.cell_centred_velocity() - ur)) / np.max(np.abs(ur))
+        dg = max(np.max(np.abs(a - b)) / np.max(np.abs(b)) for a, b in zip(r["grads"], r0["grads"]))
+        print(f"tol {tol:7.0e}: CPU {r['cpu']:5.2f} ms/step, iterations {r['its']:5.2f}, max defect {r['defect']:.1e}, "
+              f"final p {dp:.1e}, u {du:.1e}, grad p {dg:.1e} (max difference / reference scale)")
+
+
 def replay(path, repeats, guesses=("scaled", "previous", "zero"), json_out=False):
     rec = np.load(path)
     res = {g: [] for g in guesses}
@@ -508,6 +548,10 @@ def main(argv=None):
     if a.record:
         set_threads(int((a.threads or "1").split(",")[0]))
         record(a.record[0], a.record[1], a.grid or "16x15x150", a.interval, a.steps or 40, a.warm)
+        return
+    if a.replay and a.tol_sweep:
+        set_threads(1)
+        replay_tol_sweep(a.replay)
         return
     if a.replay and a.compare:
         compare_replay(a.compare, a.replay, a.repeats, a.threads or "1")

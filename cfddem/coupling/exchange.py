@@ -884,7 +884,7 @@ def build_coupled_gas(case, system, log=None) -> CoupledGas:
     cg = CoupledGas(system, grid, bcs, rho=gcfg.density, mu=gcfg.viscosity, closure=gcfg.drag,
                     coupling_interval=gcfg.coupling_interval, drag_treatment=gcfg.drag_treatment,
                     gravity=tuple(g), omega=tuple(om), axis_point=ap, log=log,
-                    pressure_solver=gcfg.pressure_solver)
+                    pressure_solver=gcfg.pressure_solver, tol=gcfg.pressure_tol)
     cg.average_start = float(case.measurements.start_time)
     cg.gas.set_velocity(lambda x, y, z: (0.0 * x, 0.0 * x, vin + 0.0 * x))
     cg.gas.set_pressure(lambda x, y, z: gcfg.density * (g[0] * x + g[1] * y + g[2] * (z - grid.origin[2] - grid.lengths[2])))
