@@ -1162,8 +1162,6 @@ class MGPressureSolver:
         self._vec = [np.zeros(self.N) for _ in range(6)]  # b, x, r, z, p, q
         self._part = np.zeros(max(nx, 1))  # per-plane partial sums
         self._ones = np.ones(self.N)
-        # red-black storage along z: position s of level 0 holds the cell perm[s] of C order
-        self._perm = self.storage_order(0)
         self._ready = False
         self._last = [np.empty(sh) for sh in self._fshapes]  # coefficients of the last set-up
         self.n_setups_skipped = 0
@@ -1234,21 +1232,23 @@ class MGPressureSolver:
     def apply(self, phi: np.ndarray) -> np.ndarray:
         """A phi (not volume-scaled: the operator of PressureSolver) for phi of shape (nx, ny, nz)."""
         nx, ny, nz = self.grid.shape
-        y = np.empty(self.N)
-        xs = np.ascontiguousarray(phi, dtype=np.float64).ravel()[self._perm]
+        xs, y = np.empty(self.N), np.empty(self.N)
+        _to_storage(np.ascontiguousarray(phi, dtype=np.float64).reshape(-1), xs, nx * ny, nz, 1.0)
         _matvec(nx, ny, nz, self._cE, self._cN, self._cT, self._dg, xs, y)
         out = np.empty(self.N)
-        out[self._perm] = y
+        _from_storage(y, out, nx * ny, nz)
         return (out / self._vol).reshape(self.grid.shape)
 
     def vcycle(self, r: np.ndarray) -> np.ndarray:
         """One V-cycle applied to a (volume-scaled) residual r: the preconditioner M r."""
-        z = np.empty(self.N)
+        nx, ny, nz = self.grid.shape
+        rs, z = np.empty(self.N), np.empty(self.N)
+        _to_storage(np.ascontiguousarray(r, dtype=np.float64).reshape(-1), rs, nx * ny, nz, 1.0)
         _vcycle(self._LV, self._LF, self._AOFF, self._AXI, self._vAXF, *self._v, self._vdense, self._xl, self._bl,
                 self._rl, self._t1, self._t2, self._dw, self._qw, self.nu, self.chebyshev, 2.0 / self.cheb_ratio,
-                np.ascontiguousarray(r, dtype=np.float64).ravel()[self._perm], z, self._part)
+                rs, z, self._part)
         out = np.empty(self.N)
-        out[self._perm] = z
+        _from_storage(z, out, nx * ny, nz)
         return out
 
     def solve(self, b: np.ndarray, x0: np.ndarray | None = None, atol: float = 0.0, scale_x0: bool = False) -> tuple:
