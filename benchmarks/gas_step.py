@@ -409,19 +409,22 @@ def replay_solver(rec, guess="scaled"):
     return s
 
 
+def recorded_inputs(arrs, i):
+    """(dt, porosity, source, drag K, drag U_p) of recorded gas step i (``arrs``: the record's
+    arrays, loaded); a missing source or drag is None."""
+    def get(name):
+        return tuple(arrs[f"{name}{c}_{i}"] for c in range(3)) if f"{name}0_{i}" in arrs else None
+    return float(arrs[f"dt_{i}"]), arrs[f"eps_{i}"], get("S"), get("K"), get("Up")
+
+
 def replay_once(rec, guess="scaled", warm=3):
     """Time the recorded gas steps once (the first ``warm`` untimed); returns per-step means."""
     n = int(rec["steps"])
     arrs = {k: rec[k] for k in rec.files}  # loaded once, outside the timing
-
-    def inputs(i):
-        get = (lambda name: tuple(arrs[f"{name}{c}_{i}"] for c in range(3)) if f"{name}0_{i}" in arrs else None)
-        return float(arrs[f"dt_{i}"]), arrs[f"eps_{i}"], get("S"), get("K"), get("Up")
-
     s = replay_solver(rec, guess)
     its, wall, cpu, defect = [], 0.0, 0.0, 0.0
     for i in range(n):
-        dt, eps, S, K, Up = inputs(i)
+        dt, eps, S, K, Up = recorded_inputs(arrs, i)
         w0, c0 = time.perf_counter(), time.process_time()
         s.set_porosity(eps)
         info = s.step(dt, source=S, drag_K=K, drag_Up=Up)
@@ -452,10 +455,10 @@ def replay_tol_sweep(path, tols=(1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-10), ref_tol=1
         s.psolver.tol = tol
         its, defect, cpu = [], 0.0, 0.0
         for i in range(n):
-            get = (lambda name: tuple(arrs[f"{name}{c}_{i}"] for c in range(3)) if f"{name}0_{i}" in arrs else None)
-            s.set_porosity(arrs[f"eps_{i}"])
+            dt, eps, S, K, Up = recorded_inputs(arrs, i)
+            s.set_porosity(eps)
             c0 = time.process_time()
-            info = s.step(float(arrs[f"dt_{i}"]), source=get("S"), drag_K=get("K"), drag_Up=get("Up"))
+            info = s.step(dt, source=S, drag_K=K, drag_Up=Up)
             cpu += time.process_time() - c0
             its.append(info.pressure_iterations)
             defect = max(defect, info.max_divergence)
