@@ -133,22 +133,6 @@ def _rate_at(u, v, w, i, j, k, rdx, rdy, rdz):
 
 
 @kernel
-def divergence_defect_kernel(u, v, w, en, eo, rdx, rdy, rdz, dt, g, nx, ny, nz):
-    """max over cells of |div(eps_f u) + (eps^{n+1} - eps^n)/dt| * dt in one pass, the
-    divergence from :func:`cfddem.gas.operators.porous_divergence_at` (the same result as
-    :func:`cfddem.gas.operators.porous_divergence_kernel` followed by
-    :func:`mass_defect_kernel`; no divergence array written)."""
-    m = 0.0
-    for i in range(g, g + nx):
-        for j in range(g, g + ny):
-            for k in range(g, g + nz):
-                val = _defect_at(u, v, w, en, eo, i, j, k, rdx, rdy, rdz, dt)
-                if val > m or val != val:  # a NaN is kept (nothing compares greater than it)
-                    m = val
-    return m * dt
-
-
-@kernel
 def local_advective_rate_kernel(u, v, w, rdx, rdy, rdz, g, nx, ny, nz):
     """max over cells of ``max(|u_W|, |u_E|)/dx + max(|v_S|, |v_N|)/dy + max(|w_B|, |w_T|)/dz``
     (the face velocities on the cell's own faces; NaN if one of them is NaN).
@@ -173,8 +157,11 @@ def local_advective_rate_kernel(u, v, w, rdx, rdy, rdz, g, nx, ny, nz):
 
 @kernel
 def step_diagnostics_kernel(u, v, w, p, en, eo, rdx, rdy, rdz, dt, g, nx, ny, nz):
-    """The end-of-step numbers in one pass over the cells: (max mass-balance defect * dt as
-    :func:`divergence_defect_kernel`, the local advective rate as
+    """The end-of-step numbers in one pass over the cells: (max over cells of
+    |div(eps_f u) + (eps^{n+1} - eps^n)/dt| * dt, the divergence from
+    :func:`cfddem.gas.operators.porous_divergence_at` (the same number as
+    :func:`cfddem.gas.operators.porous_divergence_kernel` followed by
+    :func:`mass_defect_kernel`, no divergence array written), the local advective rate as
     :func:`local_advective_rate_kernel`, max |p| over the interior); each NaN if one of its
     inputs is NaN (inf if one is infinite)."""
     md = 0.0

@@ -97,23 +97,24 @@ def test_gradient_second_order_for_smooth_field():
     assert np.all(np.abs(orders - 2.0) < 0.1), orders
 
 
-def test_divergence_defect_kernel_equals_divergence_then_defect():
-    """The one-pass mass-balance defect equals the porous divergence kernel followed by the
-    defect kernel, bit for bit, and keeps a NaN."""
+def test_one_pass_defect_equals_divergence_then_defect():
+    """The one-pass mass-balance defect of the step diagnostics equals the porous divergence
+    kernel followed by the defect kernel, bit for bit, and keeps a NaN."""
     from cfddem.gas.operators import porous_divergence_kernel
-    from cfddem.gas.projection import divergence_defect_kernel, mass_defect_kernel
+    from cfddem.gas.projection import mass_defect_kernel, step_diagnostics_kernel
 
     rng = np.random.default_rng(7)
     g, (nx, ny, nz) = 1, (5, 4, 6)
     shp = (nx + 2 * g, ny + 2 * g, nz + 2 * g)
     u, v, w = (rng.normal(size=(shp[0] + (c == 0), shp[1] + (c == 1), shp[2] + (c == 2))) for c in range(3))
-    en, eo = rng.uniform(0.4, 1.0, shp), rng.uniform(0.4, 1.0, shp)
+    en, eo, p = rng.uniform(0.4, 1.0, shp), rng.uniform(0.4, 1.0, shp), np.zeros(shp)
     div = np.zeros(shp)
     porous_divergence_kernel(u, v, w, en, 1 / 0.1, 1 / 0.2, 1 / 0.3, g, nx, ny, nz, div)
     ref = mass_defect_kernel(div, en, eo, 1e-3, g, nx, ny, nz)
-    assert ref > 0 and divergence_defect_kernel(u, v, w, en, eo, 1 / 0.1, 1 / 0.2, 1 / 0.3, 1e-3, g, nx, ny, nz) == ref
+    d = step_diagnostics_kernel(u, v, w, p, en, eo, 1 / 0.1, 1 / 0.2, 1 / 0.3, 1e-3, g, nx, ny, nz)[0]
+    assert ref > 0 and d == ref
     w[2, 2, 3] = np.nan
-    assert np.isnan(divergence_defect_kernel(u, v, w, en, eo, 10.0, 5.0, 1 / 0.3, 1e-3, g, nx, ny, nz))
+    assert np.isnan(step_diagnostics_kernel(u, v, w, p, en, eo, 10.0, 5.0, 1 / 0.3, 1e-3, g, nx, ny, nz)[0])
 
 
 def test_local_advective_rate_takes_each_cell_own_faces():
@@ -143,7 +144,7 @@ def test_fused_step_kernels_equal_the_separate_ones():
     pressure right-hand side from the velocity (= porous divergence, then the formula), and
     the end-of-step diagnostics (= mass defect, local advective rate, max |p|), NaN kept."""
     from cfddem.gas.operators import porous_divergence_kernel
-    from cfddem.gas.projection import (divergence_defect_kernel, local_advective_rate_kernel, pressure_rhs_kernel,
+    from cfddem.gas.projection import (local_advective_rate_kernel, mass_defect_kernel, pressure_rhs_kernel,
                                        step_diagnostics_kernel)
 
     rng = np.random.default_rng(8)
@@ -162,7 +163,7 @@ def test_fused_step_kernels_equal_the_separate_ones():
     pressure_rhs_kernel(u, v, w, en, eo, *r, dt, rho, g, b)
     assert np.array_equal(b, ref)
     d, rate, pm = step_diagnostics_kernel(u, v, w, p, en, eo, *r, dt, g, nx, ny, nz)
-    assert d == divergence_defect_kernel(u, v, w, en, eo, *r, dt, g, nx, ny, nz) and d > 0
+    assert d == mass_defect_kernel(div, en, eo, dt, g, nx, ny, nz) and d > 0
     assert rate == local_advective_rate_kernel(u, v, w, *r, g, nx, ny, nz) and rate > 0
     assert pm == np.max(np.abs(p[ci]))
     w[3, 3, 4] = np.nan
