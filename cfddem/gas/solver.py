@@ -325,14 +325,12 @@ class GasSolver:
         nx, ny, nz = grid.shape
         dx, dy, dz = grid.spacing
         pressure_rhs_kernel(vel[0], vel[1], vel[2], en, eo, 1.0 / dx, 1.0 / dy, 1.0 / dz, dt, rho, g, self._b)
-        if self.pressure_solver == "mg":
-            # mass-balance stop: after the correction the defect of a cell is
-            # dt^2/rho |r_c| <= dt^2/rho ||r||_2 (r = b - A phi, unscaled), so
-            # ||r||_2 <= defect_tol rho/dt^2 guarantees max defect <= defect_tol
-            phi, sinfo = self.psolver.solve(self._b, x0=self._x0(), atol=self.defect_tol * rho / (dt * dt),
-                                            scale_x0=self.initial_guess == "scaled")
-        else:
-            phi, sinfo = self.psolver.solve(self._b, x0=self._x0(), scale_x0=self.initial_guess == "scaled")
+        # mass-balance stop ("mg"): after the correction the defect of a cell is
+        # dt^2/rho |r_c| <= dt^2/rho ||r||_2 (r = b - A phi, unscaled), so
+        # ||r||_2 <= defect_tol rho/dt^2 guarantees max defect <= defect_tol
+        stop = {"atol": self.defect_tol * rho / (dt * dt)} if self.pressure_solver == "mg" else {}
+        phi, sinfo = self.psolver.solve(self._b, x0=None if self.initial_guess == "zero" else self._phi,
+                                        scale_x0=self.initial_guess == "scaled", **stop)
         self._phi = phi
         # --- 3. correction ----------------------------------------------------------------
         ci = grid.interior("ccc")
@@ -370,11 +368,6 @@ class GasSolver:
         self.last_info = GasStepInfo(sinfo.iterations, sinfo.residual, cfl, self._last_div, ok, msg,
                                      sinfo.rebuilt, sinfo.compatibility, viscous_iters)
         return self.last_info
-
-    def _x0(self):
-        """The pressure solve's initial iterate: the last increment (``initial_guess``
-        "previous", or "scaled": the solver scales it), or zero."""
-        return None if self.initial_guess == "zero" else self._phi
 
     def _implicit_viscous(self, c, sl, numer, den, eo, dt, face_range):
         """Solve ``den u* - dt L(u*) = numer - dt L(u^n)`` for component c on the updated
