@@ -28,7 +28,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from cfddem._jit import kernel, parallel_kernel, prange
+from cfddem._jit import kernel, parallel_kernel, prange  # noqa: I001  (before numba: it sets the threading layer)
+from numba import uint64 as U
+
 from cfddem.gas.grid import Field
 
 
@@ -68,15 +70,20 @@ def _f2c(f, di, dj, dk, scale, mode, out):
 
 @kernel
 def porous_divergence_at(u, v, w, eps, i, j, k, rdx, rdy, rdz):
-    """div(e_f u) at the cell centre (i, j, k) (array indices): the six face fluxes with the
-    face porosity e_f the arithmetic mean of the two cells beside the face."""
-    e = eps[i, j, k]
-    fxp = 0.5 * (e + eps[i + 1, j, k]) * u[i + 1, j, k]
-    fxm = 0.5 * (eps[i - 1, j, k] + e) * u[i, j, k]
-    fyp = 0.5 * (e + eps[i, j + 1, k]) * v[i, j + 1, k]
-    fym = 0.5 * (eps[i, j - 1, k] + e) * v[i, j, k]
-    fzp = 0.5 * (e + eps[i, j, k + 1]) * w[i, j, k + 1]
-    fzm = 0.5 * (eps[i, j, k - 1] + e) * w[i, j, k]
+    """div(e_f u) at the cell centre (i, j, k) (array indices, at least 1: a halo cell on
+    each side): the six face fluxes with the face porosity e_f the arithmetic mean of the two
+    cells beside the face.  Indices are cast to unsigned where used (no negative-index test,
+    so that the loops calling this vectorise; the same values)."""
+    im, jm, km = U(i - 1), U(j - 1), U(k - 1)
+    ip, jp, kp = U(i + 1), U(j + 1), U(k + 1)
+    iu, ju, ku = U(i), U(j), U(k)
+    e = eps[iu, ju, ku]
+    fxp = 0.5 * (e + eps[ip, ju, ku]) * u[ip, ju, ku]
+    fxm = 0.5 * (eps[im, ju, ku] + e) * u[iu, ju, ku]
+    fyp = 0.5 * (e + eps[iu, jp, ku]) * v[iu, jp, ku]
+    fym = 0.5 * (eps[iu, jm, ku] + e) * v[iu, ju, ku]
+    fzp = 0.5 * (e + eps[iu, ju, kp]) * w[iu, ju, kp]
+    fzm = 0.5 * (eps[iu, ju, km] + e) * w[iu, ju, ku]
     return (fxp - fxm) * rdx + (fyp - fym) * rdy + (fzp - fzm) * rdz
 
 

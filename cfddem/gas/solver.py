@@ -173,6 +173,7 @@ class GasSolver:
         self._numer = [np.zeros(np.zeros(grid.array_shape(loc))[sl].shape) for loc, sl in zip(_LOC, self._upd_slice)]
         self._den = [np.zeros_like(a) for a in self._numer]
         self._b = np.zeros(grid.shape)
+        self._diag_buf = np.zeros((3, grid.shape[2]))  # work rows of step_diagnostics_kernel
         self._phif = np.zeros(grid.array_shape("ccc"))
         self._rhs = [np.zeros(grid.array_shape(loc)) for loc in _LOC]
         self._work = [np.zeros(grid.array_shape(loc)) for loc in _LOC]
@@ -346,8 +347,9 @@ class GasSolver:
         # --- diagnostics ------------------------------------------------------------------
         # one pass: the mass defect, the local Courant number (NaN or inf if a velocity is:
         # the face sets are the same) and max |p| (finiteness)
+        db = self._diag_buf
         defect, rate, pmax = step_diagnostics_kernel(vel[0], vel[1], vel[2], self.p.data, en, eo, 1.0 / dx, 1.0 / dy,
-                                                     1.0 / dz, dt, g, nx, ny, nz)
+                                                     1.0 / dz, dt, g, nx, ny, nz, db, db.view(np.int64))
         self._last_div = float(defect)
         np.copyto(self._eps_prev, en)
         self.time += dt

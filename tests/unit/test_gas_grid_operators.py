@@ -97,6 +97,12 @@ def test_gradient_second_order_for_smooth_field():
     assert np.all(np.abs(orders - 2.0) < 0.1), orders
 
 
+def _buf(nz):
+    """The work rows of step_diagnostics_kernel and their int64 view."""
+    b = np.zeros((3, nz))
+    return b, b.view(np.int64)
+
+
 def test_one_pass_defect_equals_divergence_then_defect():
     """The one-pass mass-balance defect of the step diagnostics equals the porous divergence
     kernel followed by the defect kernel, bit for bit, and keeps a NaN."""
@@ -111,10 +117,10 @@ def test_one_pass_defect_equals_divergence_then_defect():
     div = np.zeros(shp)
     porous_divergence_kernel(u, v, w, en, 1 / 0.1, 1 / 0.2, 1 / 0.3, g, nx, ny, nz, div)
     ref = mass_defect_kernel(div, en, eo, 1e-3, g, nx, ny, nz)
-    d = step_diagnostics_kernel(u, v, w, p, en, eo, 1 / 0.1, 1 / 0.2, 1 / 0.3, 1e-3, g, nx, ny, nz)[0]
+    d = step_diagnostics_kernel(u, v, w, p, en, eo, 1 / 0.1, 1 / 0.2, 1 / 0.3, 1e-3, g, nx, ny, nz, *_buf(nz))[0]
     assert ref > 0 and d == ref
     w[2, 2, 3] = np.nan
-    assert np.isnan(step_diagnostics_kernel(u, v, w, p, en, eo, 10.0, 5.0, 1 / 0.3, 1e-3, g, nx, ny, nz)[0])
+    assert np.isnan(step_diagnostics_kernel(u, v, w, p, en, eo, 10.0, 5.0, 1 / 0.3, 1e-3, g, nx, ny, nz, *_buf(nz))[0])
 
 
 def test_local_advective_rate_takes_each_cell_own_faces():
@@ -162,11 +168,15 @@ def test_fused_step_kernels_equal_the_separate_ones():
     b = np.zeros((nx, ny, nz))
     pressure_rhs_kernel(u, v, w, en, eo, *r, dt, rho, g, b)
     assert np.array_equal(b, ref)
-    d, rate, pm = step_diagnostics_kernel(u, v, w, p, en, eo, *r, dt, g, nx, ny, nz)
+    d, rate, pm = step_diagnostics_kernel(u, v, w, p, en, eo, *r, dt, g, nx, ny, nz, *_buf(nz))
     assert d == mass_defect_kernel(div, en, eo, dt, g, nx, ny, nz) and d > 0
     assert rate == local_advective_rate_kernel(u, v, w, *r, g, nx, ny, nz) and rate > 0
     assert pm == np.max(np.abs(p[ci]))
     w[3, 3, 4] = np.nan
     p[3, 3, 3] = np.nan
-    d, rate, pm = step_diagnostics_kernel(u, v, w, p, en, eo, *r, dt, g, nx, ny, nz)
+    d, rate, pm = step_diagnostics_kernel(u, v, w, p, en, eo, *r, dt, g, nx, ny, nz, *_buf(nz))
     assert np.isnan(d) and np.isnan(rate) and np.isnan(pm)
+    w[3, 3, 4] = -np.inf  # infinite, not NaN: inf (the maxima are taken on the bit patterns)
+    p[3, 3, 3] = -np.inf
+    d, rate, pm = step_diagnostics_kernel(u, v, w, p, en, eo, *r, dt, g, nx, ny, nz, *_buf(nz))
+    assert np.isinf(d) and rate == np.inf and pm == np.inf
