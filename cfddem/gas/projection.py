@@ -29,13 +29,22 @@ from numba import uint64 as U
 from cfddem.gas.operators import porous_divergence_at
 
 
+@kernel(inline="always")
+def _coef_at(en, K, dt, irho, i, j, k, ia, ja, ka, di, dj, dk):
+    """(eps_f, eps_f + dt K / rho) of the face (i, j, k) (array indices ia, ja, ka with halos)."""
+    ef = 0.5 * (en[U(ia - di), U(ja - dj), U(ka - dk)] + en[U(ia), U(ja), U(ka)])
+    return ef, ef + dt * K[U(i), U(j), U(k)] * irho
+
+
 @parallel_kernel
 def predictor_kernel(u, en, p, rhs, S, K, Up, dt, rho, rh, g, di, dj, dk, lo, hi, explicit, coef, ratio, numer, den):
     """Fill coef and ratio on all faces of component (di, dj, dk) (the unit vector of its
     axis); on the faces [lo, hi) along that axis either update u to u* (``explicit``) or store
     the numerator and denominator of u* (semi-implicit viscosity, solved afterwards).
     numer/den start at face lo.  Loops follow the memory layout (k fastest); indices are cast
-    to unsigned where used (no negative-index test: the loops vectorise)."""
+    to unsigned where used (no negative-index test: the loops vectorise).  A z row is done in
+    up to three runs (faces below, inside and above [k0, k1)), each one branch-free loop, so
+    that the faces updated compute eps_f and the denominator once for both uses."""
     n0, n1, n2 = coef.shape
     irho = 1.0 / rho
     i0, j0, k0 = lo * di, lo * dj, lo * dk
@@ -44,26 +53,31 @@ def predictor_kernel(u, en, p, rhs, S, K, Up, dt, rho, rh, g, di, dj, dk, lo, hi
     k1 = hi if dk else n2
     for i in prange(n0):
         for j in range(n1):
-            for k in range(n2):
-                ia, ja, ka = g + i, g + j, g + k
-                ef = 0.5 * (en[U(ia - di), U(ja - dj), U(ka - dk)] + en[U(ia), U(ja), U(ka)])
-                d = ef + dt * K[U(i), U(j), U(k)] * irho
+            upd = i >= i0 and i < i1 and j >= j0 and j < j1
+            ka0 = k0 if upd else n2
+            kb0 = k1 if upd else n2
+            for k in range(0, ka0):
+                ef, d = _coef_at(en, K, dt, irho, i, j, k, g + i, g + j, g + k, di, dj, dk)
                 coef[U(i), U(j), U(k)] = ef * ef / d
                 ratio[U(i), U(j), U(k)] = ef / d
-            if i >= i0 and i < i1 and j >= j0 and j < j1:
-                for k in range(k0, k1):
-                    ia, ja, ka = g + i, g + j, g + k
-                    ef = 0.5 * (en[U(ia - di), U(ja - dj), U(ka - dk)] + en[U(ia), U(ja), U(ka)])
-                    d = ef + dt * K[U(i), U(j), U(k)] * irho
-                    gradp = (p[U(ia), U(ja), U(ka)] - p[U(ia - di), U(ja - dj), U(ka - dk)]) * rh
-                    num = ef * u[U(ia), U(ja), U(ka)] + dt * (rhs[U(ia), U(ja), U(ka)] - ef * gradp * irho)
-                    num += dt * S[U(i), U(j), U(k)] * irho
-                    num += dt * K[U(i), U(j), U(k)] * Up[U(i), U(j), U(k)] * irho
-                    if explicit:
-                        u[U(ia), U(ja), U(ka)] = num / d
-                    else:
-                        numer[U(i - i0), U(j - j0), U(k - k0)] = num
-                        den[U(i - i0), U(j - j0), U(k - k0)] = d
+            for k in range(ka0, kb0):
+                ia, ja, ka = g + i, g + j, g + k
+                ef, d = _coef_at(en, K, dt, irho, i, j, k, ia, ja, ka, di, dj, dk)
+                coef[U(i), U(j), U(k)] = ef * ef / d
+                ratio[U(i), U(j), U(k)] = ef / d
+                gradp = (p[U(ia), U(ja), U(ka)] - p[U(ia - di), U(ja - dj), U(ka - dk)]) * rh
+                num = ef * u[U(ia), U(ja), U(ka)] + dt * (rhs[U(ia), U(ja), U(ka)] - ef * gradp * irho)
+                num += dt * S[U(i), U(j), U(k)] * irho
+                num += dt * K[U(i), U(j), U(k)] * Up[U(i), U(j), U(k)] * irho
+                if explicit:
+                    u[U(ia), U(ja), U(ka)] = num / d
+                else:
+                    numer[U(i - i0), U(j - j0), U(k - k0)] = num
+                    den[U(i - i0), U(j - j0), U(k - k0)] = d
+            for k in range(kb0, n2):
+                ef, d = _coef_at(en, K, dt, irho, i, j, k, g + i, g + j, g + k, di, dj, dk)
+                coef[U(i), U(j), U(k)] = ef * ef / d
+                ratio[U(i), U(j), U(k)] = ef / d
 
 
 @parallel_kernel
