@@ -40,13 +40,16 @@ Usage: python benchmarks/gas_step.py [--steps 20] [--repeats 3] [--threads 1,2] 
            from rest when the checkpoint's gas grid differs) and writes the gas solver's state
            and the inputs of the next ``--steps`` gas steps (porosity, drag K and U_p, source,
            dt) to FILE (.npz, about 3 MB per step on 16 x 15 x 150)
-       python benchmarks/gas_step.py --replay FILE [--repeats 3] [--threads 1] [--tol-sweep]
+       python benchmarks/gas_step.py --replay FILE [--repeats 3] [--threads 1] [--tol-sweep] [--flush MB]
            times GasSolver.step on those recorded inputs (the real workload: the porosity of
            the moving particles and the sluice feed, instead of the synthetic bed's white
            noise) for each initial guess of the pressure solve; with --compare DIR the
            replay alternates between the package in DIR and the current one (one process each);
            with --tol-sweep: CPU, iterations, defect and the distance of the final gas
-           fields from a tol 1e-12 replay, for each pressure tolerance
+           fields from a tol 1e-12 replay, for each pressure tolerance; --flush 512 writes
+           512 MB between the steps (untimed): the particle steps of the coupled run evict the
+           gas arrays from the caches, and only then do the replay's per-kernel times match the
+           run's (64 MB is not enough)
 """
 
 from __future__ import annotations
@@ -417,14 +420,21 @@ def recorded_inputs(arrs, i):
     return float(arrs[f"dt_{i}"]), arrs[f"eps_{i}"], get("S"), get("K"), get("Up")
 
 
-def replay_once(rec, guess="scaled", warm=3):
-    """Time the recorded gas steps once (the first ``warm`` untimed); returns per-step means."""
+def replay_once(rec, guess="scaled", warm=3, flush_mb=0):
+    """Time the recorded gas steps once (the first ``warm`` untimed); returns per-step means.
+    ``flush_mb`` > 0: before each step (outside the timing) write a buffer of that many MB,
+    which evicts the gas solver's arrays from the caches as the particle steps between two
+    gas steps of the coupled run do (512 MB reproduces the coupled run's per-kernel times on
+    the 2-core machines; 64 MB does not evict them)."""
     n = int(rec["steps"])
     arrs = {k: rec[k] for k in rec.files}  # loaded once, outside the timing
     s = replay_solver(rec, guess)
+    flush = np.zeros(int(flush_mb * 2**20) // 8) if flush_mb > 0 else None
     its, wall, cpu, defect = [], 0.0, 0.0, 0.0
     for i in range(n):
         dt, eps, S, K, Up = recorded_inputs(arrs, i)
+        if flush is not None:
+            flush += 1.0
         w0, c0 = time.perf_counter(), time.process_time()
         s.set_porosity(eps)
         info = s.step(dt, source=S, drag_K=K, drag_Up=Up)
@@ -478,12 +488,14 @@ def replay_tol_sweep(path, tols=(1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-10), ref_tol=1
               f"final p {dp:.1e}, u {du:.1e}, grad p {dg:.1e} (max difference / reference scale)")
 
 
-def replay(path, repeats, guesses=("scaled", "previous", "zero"), json_out=False):
+def replay(path, repeats, guesses=("scaled", "previous", "zero"), json_out=False, flush_mb=0):
     rec = np.load(path)
     res = {g: [] for g in guesses}
+    if flush_mb:
+        print(f"caches flushed before each step ({flush_mb:g} MB written)")
     for _ in range(repeats):
         for g in guesses:
-            res[g].append(replay_once(rec, g))
+            res[g].append(replay_once(rec, g, flush_mb=flush_mb))
     for g in guesses:
         r = res[g]
         print(f"replay {str(rec['grid']):>10s} guess {str(g):>8s}: CPU {fmt_range([x['cpu'] for x in r], 10)} ms/step, "
@@ -495,7 +507,7 @@ def replay(path, repeats, guesses=("scaled", "previous", "zero"), json_out=False
     return res
 
 
-def compare_replay(old_dir, path, repeats, threads="1"):
+def compare_replay(old_dir, path, repeats, threads="1", flush_mb=0):
     """Alternate replays of ``path`` with the package in ``old_dir`` (its default initial
     guess) and the current one (default), one process each; print ranges and old/new."""
     import json
@@ -509,7 +521,8 @@ def compare_replay(old_dir, path, repeats, threads="1"):
             if tag == "old":
                 env["NUMBA_CACHE_DIR"] = os.environ.get("NUMBA_CACHE_DIR", "/tmp/numba_cache") + "_compare_old"
             out = subprocess.run([sys.executable, os.path.abspath(__file__), "--replay", os.path.abspath(path),
-                                  "--repeats", "1", "--threads", threads, "--default-guess", "--json"], env=env,
+                                  "--repeats", "1", "--threads", threads, "--default-guess", "--json",
+                                  "--flush", str(flush_mb)], env=env,
                                  cwd="/tmp", capture_output=True, text=True, check=True).stdout
             res[tag].append(json.loads(out.strip().splitlines()[-1])["None"][0])
     for tag in ("old", "new"):
@@ -545,6 +558,9 @@ def main(argv=None):
     ap.add_argument("--interval", type=int, default=10, help="--record: gas coupling interval (particle steps)")
     ap.add_argument("--warm", type=int, default=100, help="--record: gas steps skipped before recording")
     ap.add_argument("--replay", metavar="FILE", help="time the gas steps recorded in FILE")
+    ap.add_argument("--flush", type=float, default=0.0, metavar="MB",
+                    help="--replay: write MB megabytes between the steps (outside the timing) to evict the "
+                         "caches as the coupled run's particle steps do (512 reproduces the run; default 0)")
     ap.add_argument("--default-guess", action="store_true",
                     help="--replay: only the solver's default initial guess (used by --compare)")
     a = ap.parse_args(argv)
@@ -557,11 +573,12 @@ def main(argv=None):
         replay_tol_sweep(a.replay)
         return
     if a.replay and a.compare:
-        compare_replay(a.compare, a.replay, a.repeats, a.threads or "1")
+        compare_replay(a.compare, a.replay, a.repeats, a.threads or "1", a.flush)
         return
     if a.replay:
         set_threads(int((a.threads or "1").split(",")[0]))
-        replay(a.replay, a.repeats, (None,) if a.default_guess else ("scaled", "previous", "zero"), a.json)
+        replay(a.replay, a.repeats, (None,) if a.default_guess else ("scaled", "previous", "zero"), a.json,
+               a.flush)
         return
     a.steps = a.steps or 20
     if a.compare:
