@@ -272,6 +272,31 @@ def test_setup_is_skipped_only_for_identical_coefficients():
         assert not info.converged
 
 
+def test_setup_without_comparison_always_rebuilds_and_invalidates_the_stored_copy():
+    """``compare=False`` (the coupled gas step) sets up every time, with the same operator as a
+    compared set-up; it leaves no stored copy behind, so the next compared call with the
+    same coefficients rebuilds too (it must not compare against the older copy), and only the
+    call after that is skipped."""
+    g, pbc, co = chute_like(shape=(8, 7, 20), lengths=(0.04, 0.021, 0.12))
+    co2 = [c.copy() for c in co]
+    co2[2][2, 3, 4] *= 2.0
+    mg = MGPressureSolver(g, pbc)
+    mg.set_coefficients(*co)
+    mg.set_coefficients(*co2, compare=False)
+    mg.set_coefficients(*co2, compare=False)
+    assert mg.n_setups_skipped == 0
+    fresh = MGPressureSolver(g, pbc)
+    fresh.set_coefficients(*co2)
+    assert all(np.array_equal(a, b) for a, b in zip(mg._v, fresh._v))
+    for name in ("cE", "cN", "cT", "dZ", "dg"):
+        assert np.array_equal(mg.level_array(name, 1), fresh.level_array(name, 1))
+    mg.set_coefficients(*co)  # the stored copy is still co's: it must not be trusted
+    assert mg.n_setups_skipped == 0
+    assert not np.array_equal(mg.level_array("cT", 0), fresh.level_array("cT", 0))
+    mg.set_coefficients(*[c.copy() for c in co])
+    assert mg.n_setups_skipped == 1
+
+
 @pytest.mark.parametrize("solver,case", [("mg", 0), ("mg", 4), ("amg", 0)])  # amg solves case 4 (480 cells) at once
 def test_scaled_initial_guess_is_the_best_multiple_of_x0(solver, case):
     """``scale_x0``: CG starts from a x0 with a = x0.b / x0.A x0.  A multiple of the solution
