@@ -116,9 +116,13 @@ def _fine_coefficients(ax, ay, az, sc, dirich, periodic, cE, cN, cT, dX, dY, dZ)
     at non-periodic +x sides; dX: Dirichlet boundary terms.  sc[d] = V / h_d^2.  x planes in
     parallel (each cell writes its own entries).  Red-black storage along z (:func:`_pk`):
     the even k, then the odd k, each a branch-free loop (the k = 0 and k = nz - 1 entries
-    are fixed after them)."""
+    are fixed after them).  The Dirichlet arrays of an axis without a Dirichlet side are not
+    written: they are zero from their allocation on and stay so (less memory traffic)."""
     nx, ny, nz = ax.shape[0] - 1, ay.shape[1] - 1, az.shape[2] - 1
     h = (nz + 1) // 2
+    hx = dirich[0] == 1 or dirich[1] == 1
+    hy = dirich[2] == 1 or dirich[3] == 1
+    hz = dirich[4] == 1 or dirich[5] == 1
     for i in prange(nx):
         cutx = i == nx - 1 and (periodic[0] == 0 or nx == 1)
         for j in range(ny):
@@ -132,8 +136,12 @@ def _fine_coefficients(ax, ay, az, sc, dirich, periodic, cE, cN, cT, dX, dY, dZ)
                     cE[U(c)] = 0.0 if cutx else ax[U(i + 1), U(j), U(k)] * sc[0]
                     cN[U(c)] = 0.0 if cuty else ay[U(i), U(j + 1), U(k)] * sc[1]
                     cT[U(c)] = az[U(i), U(j), U(k + 1)] * sc[2]
+            if hz:
+                for c in range(row, row + nz):
                     dZ[U(c)] = 0.0
-            if i == 0 or i == nx - 1:
+            if not hx:
+                pass
+            elif i == 0 or i == nx - 1:
                 for k in range(nz):
                     d = 0.0
                     if i == 0 and dirich[0] == 1:
@@ -144,7 +152,9 @@ def _fine_coefficients(ax, ay, az, sc, dirich, periodic, cE, cN, cT, dX, dY, dZ)
             else:
                 for k in range(nz):
                     dX[U(row + k)] = 0.0
-            if j == 0 or j == ny - 1:
+            if not hy:
+                pass
+            elif j == 0 or j == ny - 1:
                 for k in range(nz):
                     d = 0.0
                     if j == 0 and dirich[2] == 1:
@@ -158,6 +168,8 @@ def _fine_coefficients(ax, ay, az, sc, dirich, periodic, cE, cN, cT, dX, dY, dZ)
             last = row + _pk(nz - 1, nz)
             if periodic[2] == 0 or nz == 1:
                 cT[U(last)] = 0.0
+            if not hz:
+                continue
             d = 0.0
             if dirich[4] == 1:
                 d += 2.0 * az[U(i), U(j), U(0)] * sc[2]
@@ -172,43 +184,52 @@ def _fine_coefficients(ax, ay, az, sc, dirich, periodic, cE, cN, cT, dX, dY, dZ)
 
 
 @kernel
-def _diag_run(c0, c1, dz, dxm, dym, cE, cN, cT, dX, dY, dZ, dg, idg, omega, vE, vN, vT, vdg, vidg, copy):
+def _diag_run(c0, c1, dz, dxm, dym, cE, cN, cT, dX, dY, dZ, dg, idg, omega, vE, vN, vT, vdg, vidg, copy, hx, hy, hz):
     """Diagonal (sum of the cell's weights) and omega / diagonal of the storage positions
     [c0, c1) of one z row whose z- neighbours sit at the fixed offset dz (x-, y- neighbours at
     dxm, dym).  ``copy``: the V-cycle runs on float32 copies: omega / diagonal goes to vidg
     only (the float64 idg, which only the float64 V-cycle reads, is not written: a smaller
-    footprint, the same vidg), and the cell's entries are copied into vE, vN, vT, vdg."""
-    if copy:
-        for c in range(c0, c1):
-            d = (cE[U(c)] + cE[U(c + dxm)] + cN[U(c)] + cN[U(c + dym)]
-                 + cT[U(c)] + cT[U(c + dz)] + dX[U(c)] + dY[U(c)] + dZ[U(c)])
-            dg[U(c)] = d
+    footprint, the same vidg), and the cell's entries are copied into vE, vN, vT, vdg.
+    hx, hy, hz: whether the axis has a Dirichlet side; without one its Dirichlet array is all
+    zero and not read (adding the zeros would give the same sum bit for bit)."""
+    for c in range(c0, c1):
+        d = (cE[U(c)] + cE[U(c + dxm)] + cN[U(c)] + cN[U(c + dym)]
+             + cT[U(c)] + cT[U(c + dz)])
+        if hx:
+            d += dX[U(c)]
+        if hy:
+            d += dY[U(c)]
+        if hz:
+            d += dZ[U(c)]
+        dg[U(c)] = d
+        if copy:
             vidg[U(c)] = omega / d
+        else:
+            idg[U(c)] = omega / d
+    if copy:
         for c in range(c0, c1):
             vE[U(c)] = cE[U(c)]
             vN[U(c)] = cN[U(c)]
             vT[U(c)] = cT[U(c)]
             vdg[U(c)] = dg[U(c)]
-    else:
-        for c in range(c0, c1):
-            d = (cE[U(c)] + cE[U(c + dxm)] + cN[U(c)] + cN[U(c + dym)]
-                 + cT[U(c)] + cT[U(c + dz)] + dX[U(c)] + dY[U(c)] + dZ[U(c)])
-            dg[U(c)] = d
-            idg[U(c)] = omega / d
 
 
 @kernel
 def _coarsen_and_factor(LV, AOFF, AXI, AXF, ZP, ZF, cE, cN, cT, dX, dY, dZ, dg, idg, dense, singular, omega,
-                        vE, vN, vT, vdg, vidg, vdense, copy):
+                        vE, vN, vT, vdg, vidg, vdense, copy, dirich):
     """Coarse weights of every level from level 0 (scaled Galerkin sums, see module doc),
     the diagonals of all levels, and the Cholesky factor of the coarsest level (lower
     triangle of ``dense``).  ZP, ZF: per fine z storage position (offsets AOFF[:, 2]), the
     storage position of its parent in the coarse row and its face and Dirichlet factors (the
     z rows are then run in storage order; every coarse entry still gets its contributions in
     the order of the fine (i, j, k)).  ``copy``: also write the V-cycle's float32 copies
-    (vE ... vidg, vdense) of the operator.  Returns 0, or 1 if the coarsest matrix is not
-    positive definite."""
+    (vE ... vidg, vdense) of the operator.  ``dirich``: the six sides' Dirichlet flags; the
+    Dirichlet array of an axis without a Dirichlet side is all zero and neither read nor
+    written.  Returns 0, or 1 if the coarsest matrix is not positive definite."""
     L = LV.shape[0]
+    hx = dirich[0] == 1 or dirich[1] == 1
+    hy = dirich[2] == 1 or dirich[3] == 1
+    hz = dirich[4] == 1 or dirich[5] == 1
     for l in range(L - 1):
         nx, ny, nz, off = LV[l, 0], LV[l, 1], LV[l, 2], LV[l, 3]
         mx, my, mz, offc = LV[l + 1, 0], LV[l + 1, 1], LV[l + 1, 2], LV[l + 1, 3]
@@ -216,9 +237,15 @@ def _coarsen_and_factor(LV, AOFF, AXI, AXF, ZP, ZF, cE, cN, cT, dX, dY, dZ, dg, 
             cE[U(c)] = 0.0
             cN[U(c)] = 0.0
             cT[U(c)] = 0.0
-            dX[U(c)] = 0.0
-            dY[U(c)] = 0.0
-            dZ[U(c)] = 0.0
+        if hx:
+            for c in range(offc, offc + mx * my * mz):
+                dX[U(c)] = 0.0
+        if hy:
+            for c in range(offc, offc + mx * my * mz):
+                dY[U(c)] = 0.0
+        if hz:
+            for c in range(offc, offc + mx * my * mz):
+                dZ[U(c)] = 0.0
         ox, oy, oz = AOFF[l, 0], AOFF[l, 1], AOFF[l, 2]
         for i in range(nx):
             I = AXI[0, 0, U(ox + i)]
@@ -239,9 +266,12 @@ def _coarsen_and_factor(LV, AOFF, AXI, AXF, ZP, ZF, cE, cN, cT, dX, dY, dZ, dg, 
                     cE[U(C)] += fx * cE[U(c)]
                     cN[U(C)] += fy * cN[U(c)]
                     cT[U(C)] += fz * cT[U(c)]
-                    dX[U(C)] += gx * dX[U(c)]
-                    dY[U(C)] += gy * dY[U(c)]
-                    dZ[U(C)] += gz * dZ[U(c)]
+                    if hx:
+                        dX[U(C)] += gx * dX[U(c)]
+                    if hy:
+                        dY[U(C)] += gy * dY[U(c)]
+                    if hz:
+                        dZ[U(C)] += gz * dZ[U(c)]
     for l in range(L):
         nx, ny, nz, off = LV[l, 0], LV[l, 1], LV[l, 2], LV[l, 3]
         h = (nz + 1) // 2
@@ -255,11 +285,11 @@ def _coarsen_and_factor(LV, AOFF, AXI, AXF, ZP, ZF, cE, cN, cT, dX, dY, dZ, dg, 
                 # z- neighbour of storage position q: q = 0 (k = 0): k = nz - 1 (wrap);
                 # 0 < q < h (even k = 2q): q + h - 1; q >= h (odd k): q - h
                 _diag_run(row, row + 1, _pk(nz - 1, nz), dxm, dym, cE, cN, cT, dX, dY, dZ, dg, idg, omega,
-                          vE, vN, vT, vdg, vidg, copy)
+                          vE, vN, vT, vdg, vidg, copy, hx, hy, hz)
                 _diag_run(row + 1, row + h, h - 1, dxm, dym, cE, cN, cT, dX, dY, dZ, dg, idg, omega,
-                          vE, vN, vT, vdg, vidg, copy)
+                          vE, vN, vT, vdg, vidg, copy, hx, hy, hz)
                 _diag_run(row + h, row + nz, -h, dxm, dym, cE, cN, cT, dX, dY, dZ, dg, idg, omega,
-                          vE, vN, vT, vdg, vidg, copy)
+                          vE, vN, vT, vdg, vidg, copy, hx, hy, hz)
     # coarsest level: dense matrix and its Cholesky factor
     nx, ny, nz, off = LV[L - 1, 0], LV[L - 1, 1], LV[L - 1, 2], LV[L - 1, 3]
     n = nx * ny * nz
@@ -1225,7 +1255,7 @@ class MGPressureSolver:
         flag = _coarsen_and_factor(self._LV, self._AOFF, self._AXI, self._AXF, self._ZP, self._ZF, self._cE,
                                    self._cN, self._cT, self._dX, self._dY, self._dZ, self._dg, self._idg,
                                    self._dense, self.singular, self.omega, *self._v, self._vdense,
-                                   self.precision == "single")
+                                   self.precision == "single", self._dirich)
         self._ready = flag == 0
 
     # interface of PressureSolver's hierarchy reuse (nothing to reuse here)
