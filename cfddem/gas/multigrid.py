@@ -139,9 +139,7 @@ def _fine_coefficients(ax, ay, az, sc, dirich, periodic, cE, cN, cT, dX, dY, dZ)
             if hz:
                 for c in range(row, row + nz):
                     dZ[U(c)] = 0.0
-            if not hx:
-                pass
-            elif i == 0 or i == nx - 1:
+            if hx and (i == 0 or i == nx - 1):
                 for k in range(nz):
                     d = 0.0
                     if i == 0 and dirich[0] == 1:
@@ -149,12 +147,10 @@ def _fine_coefficients(ax, ay, az, sc, dirich, periodic, cE, cN, cT, dX, dY, dZ)
                     if i == nx - 1 and dirich[1] == 1:
                         d += 2.0 * ax[U(nx), U(j), U(k)] * sc[0]
                     dX[U(row + _pk(k, nz))] = d
-            else:
+            elif hx:
                 for k in range(nz):
                     dX[U(row + k)] = 0.0
-            if not hy:
-                pass
-            elif j == 0 or j == ny - 1:
+            if hy and (j == 0 or j == ny - 1):
                 for k in range(nz):
                     d = 0.0
                     if j == 0 and dirich[2] == 1:
@@ -162,7 +158,7 @@ def _fine_coefficients(ax, ay, az, sc, dirich, periodic, cE, cN, cT, dX, dY, dZ)
                     if j == ny - 1 and dirich[3] == 1:
                         d += 2.0 * ay[U(i), U(ny), U(k)] * sc[1]
                     dY[U(row + _pk(k, nz))] = d
-            else:
+            elif hy:
                 for k in range(nz):
                     dY[U(row + k)] = 0.0
             last = row + _pk(nz - 1, nz)

@@ -36,6 +36,16 @@ def _coef_at(en, K, dt, irho, i, j, k, ia, ja, ka, di, dj, dk):
     return ef, ef + dt * K[U(i), U(j), U(k)] * irho
 
 
+@kernel(inline="always")
+def _coef_run(en, K, dt, irho, i, j, ka, kb, g, di, dj, dk, coef, ratio):
+    """coef = eps_f^2 / (eps_f + dt K/rho) and ratio = eps_f / (eps_f + dt K/rho) on the faces
+    k in [ka, kb) of the z row (i, j) (face-array indices)."""
+    for k in range(ka, kb):
+        ef, d = _coef_at(en, K, dt, irho, i, j, k, g + i, g + j, g + k, di, dj, dk)
+        coef[U(i), U(j), U(k)] = ef * ef / d
+        ratio[U(i), U(j), U(k)] = ef / d
+
+
 @parallel_kernel
 def predictor_kernel(u, en, p, rhs, S, K, Up, dt, rho, rh, g, di, dj, dk, lo, hi, explicit, coef, ratio, numer, den):
     """Fill coef and ratio on all faces of component (di, dj, dk) (the unit vector of its
@@ -56,10 +66,7 @@ def predictor_kernel(u, en, p, rhs, S, K, Up, dt, rho, rh, g, di, dj, dk, lo, hi
             upd = i >= i0 and i < i1 and j >= j0 and j < j1
             ka0 = k0 if upd else n2
             kb0 = k1 if upd else n2
-            for k in range(0, ka0):
-                ef, d = _coef_at(en, K, dt, irho, i, j, k, g + i, g + j, g + k, di, dj, dk)
-                coef[U(i), U(j), U(k)] = ef * ef / d
-                ratio[U(i), U(j), U(k)] = ef / d
+            _coef_run(en, K, dt, irho, i, j, 0, ka0, g, di, dj, dk, coef, ratio)
             for k in range(ka0, kb0):
                 ia, ja, ka = g + i, g + j, g + k
                 ef, d = _coef_at(en, K, dt, irho, i, j, k, ia, ja, ka, di, dj, dk)
@@ -74,10 +81,7 @@ def predictor_kernel(u, en, p, rhs, S, K, Up, dt, rho, rh, g, di, dj, dk, lo, hi
                 else:
                     numer[U(i - i0), U(j - j0), U(k - k0)] = num
                     den[U(i - i0), U(j - j0), U(k - k0)] = d
-            for k in range(kb0, n2):
-                ef, d = _coef_at(en, K, dt, irho, i, j, k, g + i, g + j, g + k, di, dj, dk)
-                coef[U(i), U(j), U(k)] = ef * ef / d
-                ratio[U(i), U(j), U(k)] = ef / d
+            _coef_run(en, K, dt, irho, i, j, kb0, n2, g, di, dj, dk, coef, ratio)
 
 
 @parallel_kernel
@@ -174,6 +178,15 @@ def local_advective_rate_kernel(u, v, w, rdx, rdy, rdz, g, nx, ny, nz):
     return m
 
 
+@kernel(inline="always")
+def _row_max(ibuf, q, n, m):
+    """max(m, ibuf[q, 0:n]) (integers: a maximum that vectorises)."""
+    for kk in range(n):
+        x = ibuf[U(q), U(kk)]
+        m = x if x > m else m
+    return m
+
+
 @kernel
 def step_diagnostics_kernel(u, v, w, p, en, eo, rdx, rdy, rdz, dt, g, nx, ny, nz, buf, ibuf):
     """The end-of-step numbers in one pass over the cells: (max over cells of
@@ -203,15 +216,9 @@ def step_diagnostics_kernel(u, v, w, p, en, eo, rdx, rdy, rdz, dt, g, nx, ny, nz
                 buf[1, U(kk)] = _rate_at(u, v, w, i, j, g + kk, rdx, rdy, rdz)
             for kk in range(nz):
                 buf[2, U(kk)] = abs(p[U(i), U(j), U(g + kk)])
-            for kk in range(nz):
-                x = ibuf[0, U(kk)]
-                m0 = x if x > m0 else m0
-            for kk in range(nz):
-                x = ibuf[1, U(kk)]
-                m1 = x if x > m1 else m1
-            for kk in range(nz):
-                x = ibuf[2, U(kk)]
-                m2 = x if x > m2 else m2
+            m0 = _row_max(ibuf, 0, nz, m0)
+            m1 = _row_max(ibuf, 1, nz, m1)
+            m2 = _row_max(ibuf, 2, nz, m2)
     ibuf[0, 0] = m0
     ibuf[1, 0] = m1
     ibuf[2, 0] = m2
