@@ -102,6 +102,29 @@ def correction_kernel(u, phi, ratio, fac, g, di, dj, dk, lo, hi):
 
 
 @kernel
+def porosity_copy_kernel(e, out, g, lim):
+    """Returns the number of values of e outside (0, lim], NaN included (``not (0 < v <= lim)``
+    holds for NaN and +-inf); if there are none, copies e into the interior of the centre
+    array ``out`` (g halo layers): out[g + i, g + j, g + k] = e[i, j, k].  Replaces numpy's
+    validation (isfinite, min, max: three passes and a temporary) and the strided copy; out is
+    left untouched by an invalid e."""
+    nx, ny, nz = e.shape
+    bad = 0
+    for i in range(nx):
+        for j in range(ny):
+            for k in range(nz):
+                v = e[U(i), U(j), U(k)]
+                bad += 0 if (v > 0.0 and v <= lim) else 1
+    if bad:
+        return bad
+    for i in range(nx):
+        for j in range(ny):
+            for k in range(nz):
+                out[U(i + g), U(j + g), U(k + g)] = e[U(i), U(j), U(k)]
+    return 0
+
+
+@kernel
 def pressure_rhs_kernel(u, v, w, en, eo, rdx, rdy, rdz, dt, rho, g, b):
     """Right-hand side of the pressure equation ``b = -(rho/dt) [div(eps_f u*) + (eps^{n+1} -
     eps^n)/dt]`` at the cells (b without halos), the divergence from

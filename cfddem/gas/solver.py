@@ -41,8 +41,8 @@ from cfddem.gas.boundaries import BoundarySet
 from cfddem.gas.grid import Field, StaggeredGrid
 from cfddem.gas.momentum import momentum_rhs, viscous_laplacian
 from cfddem.gas.multigrid import MGPressureSolver
-from cfddem.gas.projection import (correction_kernel, local_advective_rate_kernel, predictor_kernel, pressure_rhs_kernel,
-                                   step_diagnostics_kernel)
+from cfddem.gas.projection import (correction_kernel, local_advective_rate_kernel, porosity_copy_kernel, predictor_kernel,
+                                   pressure_rhs_kernel, step_diagnostics_kernel)
 from cfddem.gas.pressure import PressureSolver
 
 _LOC = ("fcc", "cfc", "ccf")
@@ -225,10 +225,10 @@ class GasSolver:
         e = np.asarray(eps_centres, dtype=float)
         if e.shape != self.grid.shape:
             raise CaseError("gas.porosity", f"shape {e.shape}, expected {self.grid.shape}")
-        if not np.all(np.isfinite(e)) or e.min() <= 0.0 or e.max() > 1.0 + 1e-12:
-            bad = np.argwhere(~np.isfinite(e) | (e <= 0.0) | (e > 1.0 + 1e-12))[0]
+        # range check and copy compiled (the field is written only if every value is valid)
+        if porosity_copy_kernel(np.ascontiguousarray(e), self.eps.data, self.grid.halo, 1.0 + 1e-12):
+            bad = np.argwhere(~((e > 0.0) & (e <= 1.0 + 1e-12)))[0]
             raise CaseError("gas.porosity", f"must lie in (0, 1]; cell {tuple(int(i) for i in bad)} has {e[tuple(bad)]}")
-        self.eps.interior = e
         self.bc.fill_scalar(self.eps.data)
         if initial or (initial is None and not self._eps_set):
             self._eps_prev = self.eps.data.copy()

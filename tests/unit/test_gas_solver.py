@@ -115,6 +115,27 @@ def test_bad_inputs_raise():
         GasSolver(StaggeredGrid((4, 4, 4), (1, 1, 1), halo=1), bcs=s.bc.bcs)
 
 
+@pytest.mark.parametrize("bad", [0.0, -0.1, 1.0 + 1e-9, np.nan, np.inf, -np.inf])
+def test_porosity_is_checked_and_kept_on_bad_input(bad):
+    """set_porosity (one compiled check-and-copy pass) copies a valid field exactly, names the
+    first bad cell of an invalid one (NaN and inf included), and leaves the field as it was."""
+    g, s = chute_section()
+    e = eps_at(g, 0.0)
+    e[-1, -1, -1] = 1.0 + 5e-13  # within the round-off allowance above 1
+    s.set_porosity(e)
+    assert np.array_equal(s.eps.interior, e)
+    before = s.eps.data.copy()
+    e2 = eps_at(g, 0.5)
+    e2[2, 3, 7] = bad
+    e2[4, 1, 9] = bad
+    with pytest.raises(CaseError, match=r"porosity.*cell \(2, 3, 7\)"):
+        s.set_porosity(e2)
+    assert np.array_equal(s.eps.data, before)
+    e3 = eps_at(g, 0.7)
+    s.set_porosity(np.asfortranarray(e3))  # any memory layout
+    assert np.array_equal(s.eps.interior, e3)
+
+
 def test_implicit_drag_relaxes_to_particle_velocity():
     """Uniform gas in a periodic box with K >> 0: one step with dt K/(eps rho) = 1000 brings
     u within 0.1 % of U_p (implicit: no overshoot, no step limit)."""
