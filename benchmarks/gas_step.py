@@ -45,8 +45,9 @@ Usage: python benchmarks/gas_step.py [--steps 20] [--repeats 3] [--threads 1,2] 
            the moving particles and the sluice feed, instead of the synthetic bed's white
            noise) for each initial guess of the pressure solve; with --compare DIR the
            replay alternates between the package in DIR and the current one (one process each);
-           with --tol-sweep: CPU, iterations, defect and the distance of the final gas
-           fields from a tol 1e-12 replay, for each pressure tolerance; --flush 512 writes
+           with --tol-sweep: CPU, wall, iterations, defect and the distance of the final gas
+           fields from a tol 1e-12 replay, for each pressure tolerance from 0.5 (next to no
+           solve: the step's floor) to 1e-10; --flush 512 writes
            512 MB between the steps (untimed): the particle steps of the coupled run evict the
            gas arrays from the caches, and only then do the replay's per-kernel times match the
            run's (64 MB is not enough)
@@ -450,41 +451,49 @@ def replay_once(rec, guess="scaled", warm=3, flush_mb=0):
                 steps=m)
 
 
-def replay_tol_sweep(path, tols=(1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-10), ref_tol=1e-12):
-    """Replay the recorded steps at each pressure tolerance: CPU, iterations, the largest
-    mass-balance defect, and how far the gas is after the recorded steps from the replay at
-    ``ref_tol`` (max |p - p_ref| and max |u - u_ref| over the interior, relative to the
-    reference's range, and max relative error of the pressure gradient on the faces: the
-    pressure force on the particles)."""
+def replay_tol_sweep(path, tols=(0.5, 1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-10), ref_tol=1e-12, flush_mb=0):
+    """Replay the recorded steps at each pressure tolerance: CPU and wall time, iterations,
+    the largest mass-balance defect, and how far the gas is after the recorded steps from the
+    replay at ``ref_tol`` (max |p - p_ref| and max |u - u_ref| over the interior, relative to
+    the reference's range, and max relative error of the pressure gradient on the faces: the
+    pressure force on the particles).  The loosest tolerances show the floor: the cost of a
+    step with next to no pressure solve (0.5: under one CG iteration), and the defect that
+    the coupled run's stop criterion (1e-4) would not accept.  ``flush_mb``: as in
+    :func:`replay_once` (512: the coupled run's cold caches)."""
     rec = np.load(path)
     n = int(rec["steps"])
     arrs = {k: rec[k] for k in rec.files}
+    flush = np.zeros(int(flush_mb * 2**20) // 8) if flush_mb > 0 else None
 
     def run_tol(tol):
         s = replay_solver(rec)
         s.psolver.tol = tol
-        its, defect, cpu = [], 0.0, 0.0
+        its, defect, cpu, wall = [], 0.0, 0.0, 0.0
         for i in range(n):
             dt, eps, S, K, Up = recorded_inputs(arrs, i)
+            if flush is not None:
+                flush[:] += 1.0
+            w0, c0 = time.perf_counter(), time.process_time()
             s.set_porosity(eps)
-            c0 = time.process_time()
             info = s.step(dt, source=S, drag_K=K, drag_Up=Up)
             cpu += time.process_time() - c0
+            wall += time.perf_counter() - w0
             its.append(info.pressure_iterations)
             defect = max(defect, info.max_divergence)
         grads = [np.diff(s.p.interior, axis=d) / s.grid.spacing[d] for d in range(3)]
-        return s, dict(cpu=cpu / n * 1e3, its=float(np.mean(its)), defect=defect, grads=grads)
+        return s, dict(cpu=cpu / n * 1e3, wall=wall / n * 1e3, its=float(np.mean(its)), defect=defect, grads=grads)
 
     ref, r0 = run_tol(ref_tol)
     pr, ur = ref.p.interior, ref.cell_centred_velocity()
     print(f"replay {str(rec['grid'])}: pressure tolerance against the replay at tol {ref_tol:g} "
-          f"({r0['its']:.2f} iterations), {n} recorded steps")
+          f"({r0['its']:.2f} iterations), {n} recorded steps"
+          + (f", caches flushed before each step ({flush_mb:g} MB written)" if flush is not None else ""))
     for tol in tols:
         s, r = run_tol(tol)
         dp = np.max(np.abs(s.p.interior - pr)) / np.ptp(pr)
         du = np.max(np.abs(s.cell_centred_velocity() - ur)) / np.max(np.abs(ur))
         dg = max(np.max(np.abs(a - b)) / np.max(np.abs(b)) for a, b in zip(r["grads"], r0["grads"]))
-        print(f"tol {tol:7.0e}: CPU {r['cpu']:5.2f} ms/step, iterations {r['its']:5.2f}, max defect {r['defect']:.1e}, "
+        print(f"tol {tol:7.0e}: CPU {r['cpu']:5.2f}, wall {r['wall']:5.2f} ms/step, iterations {r['its']:5.2f}, max defect {r['defect']:.1e}, "
               f"final p {dp:.1e}, u {du:.1e}, grad p {dg:.1e} (max difference / reference scale)")
 
 
@@ -570,7 +579,7 @@ def main(argv=None):
         return
     if a.replay and a.tol_sweep:
         set_threads(1)
-        replay_tol_sweep(a.replay)
+        replay_tol_sweep(a.replay, flush_mb=a.flush)
         return
     if a.replay and a.compare:
         compare_replay(a.compare, a.replay, a.repeats, a.threads or "1", a.flush)
