@@ -41,8 +41,8 @@ from cfddem.gas.boundaries import BoundarySet
 from cfddem.gas.grid import Field, StaggeredGrid
 from cfddem.gas.momentum import momentum_rhs, viscous_laplacian
 from cfddem.gas.multigrid import MGPressureSolver
-from cfddem.gas.projection import (correction_kernel, local_advective_rate_kernel, porosity_copy_kernel, predictor_kernel,
-                                   pressure_rhs_kernel, step_diagnostics_kernel)
+from cfddem.gas.projection import (correction_kernel, local_advective_rate_kernel, porosity_copy_kernel,
+                                   predictor_kernel, pressure_rhs_kernel, step_diagnostics_kernel)
 from cfddem.gas.pressure import PressureSolver
 
 _LOC = ("fcc", "cfc", "ccf")
