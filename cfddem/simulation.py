@@ -631,6 +631,10 @@ class Simulation:
                       ", ".join(f"{k} {v:.1f} s" for k, v in timings.items()))
         if message:
             self.log.info(message)
+        if self.gas is not None:
+            line = self.gas.run_summary()
+            if line:
+                self.log.info(line)
         inl = self.inlet
         if inl is not None and inl.mass_inserted > 0:
             frac = inl.mass_dropped / (inl.mass_inserted + inl.mass_dropped)
@@ -837,38 +841,38 @@ def memory_estimate(n: int) -> float:
 def describe_case(case: Case) -> list[str]:
     """The derived numbers `cfddem check` prints (and the run log records)."""
     lines = []
-    d = case.particles.diameter
-    m = particle_mass(case)
-    lines.append(f"particle: d = {d * 1e3:.3g} mm" + (f"..{case.particles.diameter_max * 1e3:.3g} mm"
-                                                     if case.particles.diameter_max else "")
-                 + f", rho = {case.particles.density:g} kg/m3, m = {m:.4g} kg, I = {0.1 * m * d * d:.4g} kg m2")
-    model = case.contact.model
-    pp = contact_law(case.resolved["contact"]["particle_particle"], model)
-    r = 0.5 * d
-    v = impact_speed(case)
-    for label, law, meff, reff in [("particle-particle", pp, 0.5 * m, 0.5 * r)] + [
-            (f"particle-wall ({w.name})", contact_law(w.params, model), m, r) for w in wall_specs(case)]:
+    if not has_particles(case):
+        lines.append("particles: none (no inlet, no initial particles): no particle or contact numbers")
+        lines.append(f"time step: dt = {case.time.dt:g} s (no particles: no contact time-step limit)")
+    else:
+        d = case.particles.diameter
+        m = particle_mass(case)
+        lines.append(f"particle: d = {d * 1e3:.3g} mm" + (f"..{case.particles.diameter_max * 1e3:.3g} mm"
+                                                         if case.particles.diameter_max else "")
+                     + f", rho = {case.particles.density:g} kg/m3, m = {m:.4g} kg, I = {0.1 * m * d * d:.4g} kg m2")
+        model = case.contact.model
+        pp = contact_law(case.resolved["contact"]["particle_particle"], model)
+        r = 0.5 * d
+        v = impact_speed(case)
+        for label, law, meff, reff in [("particle-particle", pp, 0.5 * m, 0.5 * r)] + [
+                (f"particle-wall ({w.name})", contact_law(w.params, model), m, r) for w in wall_specs(case)]:
+            if model == "hertz_mindlin":
+                dv = law.derived(meff, reff, v)
+                lines.append(f"{label}: Hertz-Mindlin E* = {dv['E_star']:.4g} Pa, G* = {dv['G_star']:.4g} Pa, "
+                             f"beta = {dv['beta']:.4g}; at v = {v:.3g} m/s: max overlap {dv['d_max'] / r:.3g} R, "
+                             f"S_n = {dv['S_n']:.4g} N/m, eta_n = {dv['eta_n']:.4g} kg/s, S_t = {dv['S_t']:.4g} N/m, "
+                             f"t_c = {dv['t_c']:.4g} s (m* = {meff:.4g} kg, R* = {reff:.4g} m)")
+                continue
+            dv = law.derived(meff)
+            lines.append(f"{label}: k_n = {law.k_n:g} N/m, eta_n = {dv['eta_n']:.4g} kg/s, k_t = {dv['k_t']:.4g} N/m, "
+                         f"eta_t = {dv['eta_t']:.4g} kg/s, t_c = {dv['t_c']:.4g} s (m* = {meff:.4g} kg)")
         if model == "hertz_mindlin":
-            dv = law.derived(meff, reff, v)
-            lines.append(f"{label}: Hertz-Mindlin E* = {dv['E_star']:.4g} Pa, G* = {dv['G_star']:.4g} Pa, "
-                         f"beta = {dv['beta']:.4g}; at v = {v:.3g} m/s: max overlap {dv['d_max'] / r:.3g} R, "
-                         f"S_n = {dv['S_n']:.4g} N/m, eta_n = {dv['eta_n']:.4g} kg/s, S_t = {dv['S_t']:.4g} N/m, "
-                         f"t_c = {dv['t_c']:.4g} s (m* = {meff:.4g} kg, R* = {reff:.4g} m)")
-            continue
-        dv = law.derived(meff)
-        lines.append(f"{label}: k_n = {law.k_n:g} N/m, eta_n = {dv['eta_n']:.4g} kg/s, k_t = {dv['k_t']:.4g} N/m, "
-                     f"eta_t = {dv['eta_t']:.4g} kg/s, t_c = {dv['t_c']:.4g} s (m* = {meff:.4g} kg)")
-    if model == "hertz_mindlin":
-        tr = rayleigh_time(case)
-        lines.append(f"Rayleigh time T_R = {tr:.4g} s: dt = {case.time.dt / tr:.3g} T_R "
-                     f"({'OK' if case.time.dt <= 0.2 * tr else 'WARNING: above 0.2 T_R'})")
-    tc = collision_time(case)
-    ratio = case.time.dt / tc
-    if has_particles(case):
+            tr = rayleigh_time(case)
+            lines.append(f"Rayleigh time T_R = {tr:.4g} s: dt = {case.time.dt / tr:.3g} T_R "
+                         f"({'OK' if case.time.dt <= 0.2 * tr else 'WARNING: above 0.2 T_R'})")
+        ratio = case.time.dt / collision_time(case)
         lines.append(f"time step: dt = {case.time.dt:g} s = t_c/{1 / ratio:.1f} "
                      f"({'OK' if ratio <= 0.05 else 'WARNING: above t_c/20' if ratio <= 0.2 else 'REFUSED: above t_c/5'})")
-    else:
-        lines.append(f"time step: dt = {case.time.dt:g} s (no particles: no contact time-step limit)")
     g = gravity_vector(case)
     om = frame_omega(case)
     lines.append(f"gravity: ({g[0]:.4g}, {g[1]:.4g}, {g[2]:.4g}) m/s2; frame rotation: "
@@ -878,8 +882,9 @@ def describe_case(case: Case) -> list[str]:
         inl = sluice_inlet(case)
         lines.append(f"inlet: {case.inlet.mass_rate:g} kg/s through a bcc sluice of {inl.lattice.per_period} particles "
                      f"per {inl.lattice.a * 1e3:.3f} mm, feed velocity {inl.velocity:.4g} m/s")
-    n = expected_particles(case)
-    lines.append(f"expected particles: about {n:,}; memory about {memory_estimate(n) / 2 ** 20:.0f} MiB")
+    if has_particles(case):
+        n = expected_particles(case)
+        lines.append(f"expected particles: about {n:,}; memory about {memory_estimate(n) / 2 ** 20:.0f} MiB")
     steps = int(math.ceil(case.time.end_time / case.time.dt))
     lines.append(f"steps to end time {case.time.end_time:g} s: {steps:,}")
     if case.gas.enabled:

@@ -356,9 +356,12 @@ class CoupledGas:
         self.phase = 0
         self.n_couplings = 0
         self._low_reports = 0
-        self._last = {"gas_pressure_iterations": 0.0, "gas_cfl": 0.0, "min_porosity": 1.0,
-                      "gas_max_divergence": 0.0, "drag_power": 0.0, "n_low_porosity_cells": 0.0,
-                      "n_clipped_cells": 0.0, "max_drag_force": 0.0}
+        self._last = {"gas_pressure_iterations": 0.0, "gas_pressure_residual": 0.0, "gas_cfl": 0.0,
+                      "min_porosity": 1.0, "gas_max_divergence": 0.0, "drag_power": 0.0,
+                      "n_low_porosity_cells": 0.0, "n_clipped_cells": 0.0, "max_drag_force": 0.0}
+        # the gas steps of this run (not of a run resumed from): run_summary() logs them
+        self._run_stats = {"steps": 0, "its_sum": 0, "its_max": 0, "res_max": 0.0, "defect_max": 0.0,
+                           "cfl_max": 0.0}
         self.last_exchange: dict = {}
         self._ws: dict = {}  # MappingPlan work arrays, reused between coupling steps
         self._superficial: dict = {}
@@ -488,9 +491,18 @@ class CoupledGas:
         self._gas_wall = _time.perf_counter() - t0
         if timings is not None:
             timings["gas"] = timings.get("gas", 0.0) + self._gas_wall
-        self._last.update(gas_pressure_iterations=float(info.pressure_iterations), gas_cfl=float(info.cfl),
+        self._last.update(gas_pressure_iterations=float(info.pressure_iterations),
+                          gas_pressure_residual=float(info.pressure_residual), gas_cfl=float(info.cfl),
                           min_porosity=float(por.eps_min_found), gas_max_divergence=float(info.max_divergence),
                           n_low_porosity_cells=float(por.n_low), n_clipped_cells=float(n_clip))
+        st = self._run_stats
+        st["steps"] += 1
+        st["its_sum"] += int(info.pressure_iterations)
+        st["its_max"] = max(st["its_max"], int(info.pressure_iterations))
+        # max() with the new value first: a NaN (a failed step) is kept, not skipped
+        st["res_max"] = max(float(info.pressure_residual), st["res_max"])
+        st["defect_max"] = max(float(info.max_divergence), st["defect_max"])
+        st["cfl_max"] = max(float(info.cfl), st["cfl_max"])
         if not info.ok:
             return CouplingStatus(flag="gas", message=f"gas step failed at t = {sys_.time:.6g} s: {info.message}")
         if info.cfl > self.cfl_stop:
@@ -797,6 +809,24 @@ class CoupledGas:
             self.system.ext_force[found] = f[order][k[found]]
 
     # ------------------------------------------------------------------ diagnostics
+    def run_summary(self) -> str | None:
+        """One log line on the gas steps of this run (None before the first): their number,
+        the pressure solve's CG iterations (mean, max) and largest relative residual against
+        its tolerance, the largest mass-balance defect and the largest Courant number."""
+        st = self._run_stats
+        n = st["steps"]
+        if n == 0:
+            return None
+        gas = self.gas
+        tol = getattr(gas.psolver, "tol", None)
+        stop = "" if tol is None else f" (stops at {tol:.0e}"
+        if stop and gas.pressure_solver == "mg" and gas.defect_tol > 0:
+            stop += f" or once the defect is sure to be below {gas.defect_tol:.0e}"
+        return (f"gas: {n} steps; pressure solve ({gas.pressure_solver}): CG iterations mean "
+                f"{st['its_sum'] / n:.2f}, max {st['its_max']}; relative residual at most {st['res_max']:.2e}"
+                + (stop + ")" if stop else "")
+                + f"; mass-balance defect at most {st['defect_max']:.2e}; Courant number at most {st['cfl_max']:.3g}")
+
     def diagnostics(self) -> list[str]:
         s = self.system
         d = float(2 * s.radius.max()) if s.n else None
@@ -898,9 +928,12 @@ def coupling_diagnostics(case) -> list[str]:
     """The coupling numbers of a chute case without running (for ``cfddem check``)."""
     if not case.gas.enabled:
         return ["gas: off"]
+    from cfddem.simulation import has_particles
+
     grid, bcs, g, om, ap, vin = _chute_setup(case)
     gcfg = case.gas
-    d = max(case.particles.diameter, case.particles.diameter_max)
+    # no particle numbers (cell/particle size, relaxation times) for a gas-only case
+    d = max(case.particles.diameter, case.particles.diameter_max) if has_particles(case) else None
     gas = GasSolver(grid, rho=gcfg.density, mu=gcfg.viscosity, bcs=bcs, gravity=tuple(g), omega=tuple(om),
                     axis_point=ap)
     gas.set_velocity(lambda x, y, z: (0.0 * x, 0.0 * x, vin + 0.0 * x))

@@ -1,5 +1,6 @@
 """Gas through the same CLI and case format: a gas-only chute and a short coupled chute."""
 
+import re
 import subprocess
 import sys
 
@@ -38,6 +39,25 @@ def test_gas_only_chute_writes_gas_fields(tmp_path):
     pvd = (out / "vtk" / "gas.pvd").read_text()
     assert pvd.count("<DataSet") == 3
     assert len(list((out / "vtk" / "gas").glob("*.vtu"))) == 3
+    # the pressure solve's iterations and residuals: per sampled step in the series, over the
+    # whole run in the log (every one of the 200 gas steps)
+    # (the solve stops at the relative residual 1e-8 or once the true residual guarantees a
+    # mass-balance defect below 1e-10, whichever comes first: here the latter, at relative
+    # residuals of about 1e-4 to 1e-3)
+    assert np.all(np.isfinite(s["gas_pressure_residual"])) and np.all(s["gas_pressure_residual"][1:] > 0)
+    log = (out / "run.log").read_text()
+    m = re.search(r"gas: (\d+) steps; pressure solve \(mg\): CG iterations mean ([\d.]+), max (\d+); "
+                  r"relative residual at most ([\d.e+-]+) \(stops at 1e-08 or once the defect is sure to be below "
+                  r"1e-10\); mass-balance defect at most ([\d.e+-]+); Courant number at most ([\d.e+-]+)", log)
+    assert m, log[-2000:]
+    assert int(m[1]) == 200
+    assert 1.0 <= float(m[2]) <= int(m[3]) and int(m[3]) >= np.max(s["gas_pressure_iterations"])
+    assert float(m[4]) >= np.max(s["gas_pressure_residual"]) * (1 - 1e-2)
+    assert np.max(s["gas_max_divergence"]) * (1 - 1e-2) <= float(m[5]) < 1e-8
+    assert float(m[6]) >= np.max(s["gas_cfl"]) * (1 - 1e-2)
+    # a gas-only case: no particle or contact numbers, no warning about particles it does not have
+    assert "particles: none" in log
+    assert "particle-wall" not in log and "noisy porosity" not in log and "relaxation time" not in log
 
 
 def test_gas_step_too_large_is_diagnosed(tmp_path):
