@@ -832,7 +832,7 @@ class CoupledGas:
         d = float(2 * s.radius.max()) if s.n else None
         rho_p = float(s.mass[0] / (4.0 / 3.0 * np.pi * s.radius[0] ** 3)) if s.n else None
         lines = _diag_lines(self.grid, d, rho_p, self.rho, self.mu, self.closure, float(s.dt), self.N,
-                            self.gas.max_stable_dt(), self.drag_treatment)
+                            self.gas.stable_dt_limits(), self.drag_treatment)
         lines.append(f"gas CFL of the last step: {self._last['gas_cfl']:.3g}; min porosity: "
                      f"{self._last['min_porosity']:.3g} ({int(self._last['n_low_porosity_cells'])} cells below "
                      f"{self.eps_min:g})")
@@ -865,11 +865,19 @@ def _diag_lines(grid, d, rho_p, rho, mu, closure, dt, N, gas_stable_dt, treatmen
                      f"dt/tau = {dt / min(tau_t, tau_d):.3g}, dt_g/tau = {dtg / min(tau_t, tau_d):.3g}"
                      + (" (explicit drag unstable: dt_g > 2 tau)" if treatment == "explicit"
                         and dtg > 2 * min(tau_t, tau_d) else ""))
+    # gas_stable_dt: GasSolver.stable_dt_limits() (each limit named) or one number
+    if isinstance(gas_stable_dt, dict):
+        label = {"advective": "advective at the present gas velocity", "viscous": "viscous (explicit)",
+                 "coriolis": "Coriolis"}
+        named = ", ".join(f"{label.get(k, k)} {v:.3g} s" for k, v in gas_stable_dt.items() if math.isfinite(v))
+        stable = f"gas stable step {min(gas_stable_dt.values()):.3g} s" + (f" ({named})" if named else " (no limit)")
+    else:
+        stable = f"gas stable step {gas_stable_dt:.3g} s"
     if u_scale:
         cfl = dtg * sum(u_scale / hh for hh in h)
-        lines.append(f"gas CFL estimate at {u_scale:.3g} m/s: {cfl:.3g}; gas stable step {gas_stable_dt:.3g} s")
+        lines.append(f"gas CFL estimate at {u_scale:.3g} m/s: {cfl:.3g}; {stable}")
     else:
-        lines.append(f"gas stable step {gas_stable_dt:.3g} s")
+        lines.append(stable)
     return lines
 
 
@@ -943,7 +951,7 @@ def coupling_diagnostics(case) -> list[str]:
     wind = float(np.max(np.linalg.norm(np.cross(om, corners - np.asarray(ap)), axis=1))) if np.any(om) else 0.0
     u_scale = max(vin, wind, 1e-12)
     lines = _diag_lines(grid, d, case.particles.density, gcfg.density, gcfg.viscosity, gcfg.drag,
-                        case.time.dt, gcfg.coupling_interval, gas.max_stable_dt(), gcfg.drag_treatment, u_scale)
+                        case.time.dt, gcfg.coupling_interval, gas.stable_dt_limits(), gcfg.drag_treatment, u_scale)
     lines.append(f"gas inlet velocity {vin:.4g} m/s; lid: {gcfg.lid} (max cross-wind {wind:.3g} m/s); "
                  f"min porosity: computed at run time (cells below 0.3 are logged)")
     return lines

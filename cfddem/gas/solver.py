@@ -450,22 +450,28 @@ class GasSolver:
           (1 + lam_ratio)/h_c^2]``, ``nu_e = nu max(eps)/min(eps)``;
         * Coriolis (explicit): ``0.05 / |Omega|`` (amplification ``sqrt(1 + (2|Omega|dt)^2)``
           per step stays below 1 + 5e-3).
-        Drag is implicit and sets no limit.
+        Drag is implicit and sets no limit.  Each limit separately: :meth:`stable_dt_limits`.
         """
-        lims = [np.inf]
+        return float(min(self.stable_dt_limits().values()))
+
+    def stable_dt_limits(self) -> dict:
+        """The limits of :meth:`max_stable_dt` by name, in s: ``advective`` (at the current
+        velocity), ``viscous`` (explicit viscosity only), ``coriolis``; inf where a term sets
+        none (gas at rest, implicit or zero viscosity, no rotation)."""
+        lims = {"advective": np.inf, "viscous": np.inf, "coriolis": np.inf}
         rate = self._advective_rate()
         if rate > 0:
-            lims.append(self.cfl_max / rate)
+            lims["advective"] = self.cfl_max / rate
         if self.nu > 0 and self.viscosity == "explicit":
             e = self.eps.interior
             nu_e = self.nu * float(e.max() / e.min())
             inv = [1.0 / h**2 for h in self.grid.spacing]
             S = max(sum(inv) + max(1.0 + self.lam_ratio, 0.0) * inv[c] for c in range(3))
-            lims.append(1.0 / (2.0 * nu_e * S))
+            lims["viscous"] = 1.0 / (2.0 * nu_e * S)
         om = float(np.linalg.norm(self.omega))
         if om > 0:
-            lims.append(0.05 / om)
-        return float(min(lims))
+            lims["coriolis"] = 0.05 / om
+        return {k: float(v) for k, v in lims.items()}
 
     # --- output and diagnostics ---------------------------------------------------------
     def cell_centred_velocity(self) -> np.ndarray:

@@ -115,6 +115,31 @@ def test_bad_inputs_raise():
         GasSolver(StaggeredGrid((4, 4, 4), (1, 1, 1), halo=1), bcs=s.bc.bcs)
 
 
+def test_stable_dt_limits_by_name():
+    """Each explicit term's limit, by the formulas of max_stable_dt, which is their minimum;
+    inf where a term sets none."""
+    from cfddem.gas import Periodic
+
+    g, s = chute_section()
+    s.set_porosity(eps_at(g, 0.0))
+    lim = s.stable_dt_limits()
+    assert set(lim) == {"advective", "viscous", "coriolis"}
+    assert s.max_stable_dt() == min(lim.values())
+    assert lim["coriolis"] == pytest.approx(0.05 / np.linalg.norm((0.0, 1.45, -0.84)), rel=1e-12)
+    e = s.eps.interior
+    inv = [1.0 / h**2 for h in g.spacing]
+    S = max(sum(inv) + (1.0 + s.lam_ratio) * inv[c] for c in range(3))
+    assert lim["viscous"] == pytest.approx(1.0 / (2.0 * s.nu * e.max() / e.min() * S), rel=1e-12)
+    s.step(1e-3)
+    assert lim["advective"] > s.stable_dt_limits()["advective"] or np.isinf(lim["advective"])
+    assert s.stable_dt_limits()["advective"] == pytest.approx(s.cfl_max / s._advective_rate(), rel=1e-12)
+    # implicit viscosity, no rotation, gas at rest: no limit at all
+    g2 = StaggeredGrid((4, 4, 4), (1.0, 1.0, 1.0))
+    s2 = GasSolver(g2, bcs={k: Periodic() for k in ("x-", "x+", "y-", "y+", "z-", "z+")}, viscosity="implicit")
+    assert s2.stable_dt_limits() == {"advective": np.inf, "viscous": np.inf, "coriolis": np.inf}
+    assert s2.max_stable_dt() == np.inf
+
+
 @pytest.mark.parametrize("bad", [0.0, -0.1, 1.0 + 1e-9, np.nan, np.inf, -np.inf])
 def test_porosity_is_checked_and_kept_on_bad_input(bad):
     """set_porosity (one compiled check-and-copy pass) copies a valid field exactly, names the
