@@ -624,6 +624,8 @@ class Simulation:
                              mass_out=self.counters["mass_out"], message=message, timings=timings)
         res.write_metadata(status=status, message=message, wall_time=wall, steps=s.step_count,
                            **{f"time_{k}": v for k, v in timings.items()})
+        if self.gas is not None:
+            res.write_metadata(**self.gas.run_stats())
         res.close()
         (self.out / RUN_MARKER).write_text(json.dumps({"program": "cfddem", "version": __version__,
                                                        "case": self.case.name, **summary.to_dict()}, indent=1))

@@ -809,6 +809,16 @@ class CoupledGas:
             self.system.ext_force[found] = f[order][k[found]]
 
     # ------------------------------------------------------------------ diagnostics
+    def run_stats(self) -> dict:
+        """The gas steps of this run: ``gas_steps``, ``gas_cg_iterations_mean`` and ``_max``,
+        ``gas_pressure_residual_max`` (relative), ``gas_mass_defect_max``, ``gas_cfl_max``
+        (the run stores them in results.h5's metadata, the comparison report shows them)."""
+        st = self._run_stats
+        n = st["steps"]
+        return {"gas_steps": n, "gas_cg_iterations_mean": st["its_sum"] / n if n else math.nan,
+                "gas_cg_iterations_max": st["its_max"], "gas_pressure_residual_max": st["res_max"],
+                "gas_mass_defect_max": st["defect_max"], "gas_cfl_max": st["cfl_max"]}
+
     def run_summary(self) -> str | None:
         """One log line on the gas steps of this run (None before the first): their number,
         the pressure solve's CG iterations (mean, max) and largest relative residual against

@@ -6,7 +6,9 @@ Reads two run folders (``results.h5`` each) and writes, into ``--out DIR``:
   figures embedded as base64 PNG);
 * ``summary.json`` with at least ``velocity_end_a``, ``velocity_end_b`` (mean streamwise
   particle velocity over the last 0.1 m of the chute, m/s), ``relative_difference_end``
-  ((b - a)/a), ``wall_time_a``, ``wall_time_b`` (s), and the cost split of each run.
+  ((b - a)/a), ``wall_time_a``, ``wall_time_b`` (s), the cost split of each run, and
+  ``gas_solver_a``/``_b`` (the gas steps' count, CG iterations, largest residual, mass-balance
+  defect and Courant number over the run; null without gas).
 
 Figures: mean streamwise velocity along the chute (both runs); bed height along the chute at the
 left, centre and right sensors; streamwise and spanwise surface velocity across the width at
@@ -66,6 +68,18 @@ class Run:
         self.exit_z = float(self.config.get("exit", {}).get("z", np.nan))
         self.wall_time = float(self.meta.get("wall_time", np.nan))
         self.timings = {k[len("time_"):]: float(v) for k, v in self.meta.items() if k.startswith("time_")}
+        # the gas solver over the run (Simulation stores CoupledGas.run_stats(); absent without gas)
+        keys = ("gas_steps", "gas_cg_iterations_mean", "gas_cg_iterations_max", "gas_pressure_residual_max",
+                "gas_mass_defect_max", "gas_cfl_max")
+        self.gas_solver = {k: float(self.meta[k]) for k in keys} if all(k in self.meta for k in keys) else {}
+
+    def gas_solver_line(self) -> str | None:
+        g = self.gas_solver
+        if not g.get("gas_steps"):
+            return None
+        return (f"gas solver ({self.label}): {int(g['gas_steps'])} gas steps, pressure CG iterations mean "
+                f"{g['gas_cg_iterations_mean']:.2f} (max {int(g['gas_cg_iterations_max'])}), mass-balance defect "
+                f"at most {g['gas_mass_defect_max']:.2e}, Courant number at most {g['gas_cfl_max']:.3g}")
 
     def velocity_end(self) -> float:
         """Mean streamwise particle velocity over the last 0.1 m of the chute (cells weighted
@@ -264,14 +278,16 @@ def compare_runs(a: str | Path, b: str | Path, out: str | Path, labels=(None, No
         "wall_time_ratio": rb.wall_time / ra.wall_time if ra.wall_time else math.nan,
         "cost_a": ra.timings, "cost_b": rb.timings,
         "rpm_a": ra.rpm, "rpm_b": rb.rpm,
+        "gas_solver_a": ra.gas_solver or None, "gas_solver_b": rb.gas_solver or None,
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=True))
     md = [f"# {ra.label} against {rb.label}", "",
           f"- A: `{ra.folder}` ({ra.label}, {ra.rpm:g} rpm); B: `{rb.folder}` ({rb.label}, {rb.rpm:g} rpm)",
           f"- mean streamwise particle velocity over the last {END_LENGTH:g} m: A {va:.4f} m/s, "
           f"B {vb:.4f} m/s, relative difference (B - A)/A = {100 * summary['relative_difference_end']:+.2f} %",
-          f"- wall time: A {ra.wall_time:.1f} s, B {rb.wall_time:.1f} s, ratio B/A = {summary['wall_time_ratio']:.3f}",
-          ""]
+          f"- wall time: A {ra.wall_time:.1f} s, B {rb.wall_time:.1f} s, ratio B/A = {summary['wall_time_ratio']:.3f}"]
+    md += [f"- {line}" for line in (ra.gas_solver_line(), rb.gas_solver_line()) if line]
+    md.append("")
     md.append("| cost [s] | " + " | ".join(r.label for r in runs) + " |")
     md.append("|---|---|---|")
     for p in sorted(set(ra.timings) | set(rb.timings)):

@@ -7,7 +7,7 @@ import sys
 import numpy as np
 import pytest
 
-from cfddem.io.results import list_snapshots, read_series, read_snapshot
+from cfddem.io.results import list_snapshots, read_metadata, read_series, read_snapshot
 
 from ..conftest import CASES
 
@@ -55,6 +55,9 @@ def test_gas_only_chute_writes_gas_fields(tmp_path):
     assert float(m[4]) >= np.max(s["gas_pressure_residual"]) * (1 - 1e-2)
     assert np.max(s["gas_max_divergence"]) * (1 - 1e-2) <= float(m[5]) < 1e-8
     assert float(m[6]) >= np.max(s["gas_cfl"]) * (1 - 1e-2)
+    meta = read_metadata(out / "results.h5")  # the same numbers, for the comparison report
+    assert int(meta["gas_steps"]) == 200 and int(meta["gas_cg_iterations_max"]) == int(m[3])
+    assert f"{float(meta['gas_mass_defect_max']):.2e}" == m[5]
     # a gas-only case: no particle or contact numbers, no warning about particles it does not have
     assert "particles: none" in log
     assert "particle-wall" not in log and "noisy porosity" not in log and "relaxation time" not in log

@@ -35,6 +35,9 @@ def fake_run(folder, speed, gas, wall, rpm=16.0):
                                            "z": np.linspace(-0.097, 0.797, 150)})
         res.write_metadata(wall_time=wall, time_particles=0.8 * wall, time_gas=0.15 * wall if gas else 0.0,
                            time_output=0.05 * wall)
+        if gas:  # as Simulation stores CoupledGas.run_stats()
+            res.write_metadata(gas_steps=2188, gas_cg_iterations_mean=6.61, gas_cg_iterations_max=7,
+                               gas_pressure_residual_max=2.37e-7, gas_mass_defect_max=2.88e-9, gas_cfl_max=0.475)
     return folder
 
 
@@ -56,6 +59,10 @@ def test_compare_report_and_summary(tmp_path):
         assert (out / f).stat().st_size > 5000, f
     md = (out / "report.md").read_text()
     assert "-5.00 %" in md
+    assert s["gas_solver_a"] is None and s["gas_solver_b"]["gas_steps"] == 2188
+    assert ("gas solver (with gas): 2188 gas steps, pressure CG iterations mean 6.61 (max 7), mass-balance "
+            "defect at most 2.88e-09, Courant number at most 0.475") in md
+    assert "gas solver (no gas)" not in md
     h = (out / "report.html").read_text()
     assert h.count("data:image/png;base64,") == 6
 
