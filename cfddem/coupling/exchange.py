@@ -823,19 +823,19 @@ class CoupledGas:
         """One log line on the gas steps of this run (None before the first): their number,
         the pressure solve's CG iterations (mean, max) and largest relative residual against
         its tolerance, the largest mass-balance defect and the largest Courant number."""
-        st = self._run_stats
-        n = st["steps"]
-        if n == 0:
+        st = self.run_stats()
+        if st["gas_steps"] == 0:
             return None
         gas = self.gas
         tol = getattr(gas.psolver, "tol", None)
         stop = "" if tol is None else f" (stops at {tol:.0e}"
         if stop and gas.pressure_solver == "mg" and gas.defect_tol > 0:
             stop += f" or once the defect is sure to be below {gas.defect_tol:.0e}"
-        return (f"gas: {n} steps; pressure solve ({gas.pressure_solver}): CG iterations mean "
-                f"{st['its_sum'] / n:.2f}, max {st['its_max']}; relative residual at most {st['res_max']:.2e}"
-                + (stop + ")" if stop else "")
-                + f"; mass-balance defect at most {st['defect_max']:.2e}; Courant number at most {st['cfl_max']:.3g}")
+        return (f"gas: {st['gas_steps']} steps; pressure solve ({gas.pressure_solver}): CG iterations mean "
+                f"{st['gas_cg_iterations_mean']:.2f}, max {st['gas_cg_iterations_max']}; relative residual at most "
+                f"{st['gas_pressure_residual_max']:.2e}" + (stop + ")" if stop else "")
+                + f"; mass-balance defect at most {st['gas_mass_defect_max']:.2e}; Courant number at most "
+                f"{st['gas_cfl_max']:.3g}")
 
     def diagnostics(self) -> list[str]:
         s = self.system
