@@ -843,7 +843,8 @@ def memory_estimate(n: int) -> float:
 def describe_case(case: Case) -> list[str]:
     """The derived numbers `cfddem check` prints (and the run log records)."""
     lines = []
-    if not has_particles(case):
+    particles = has_particles(case)
+    if not particles:
         lines.append("particles: none (no inlet, no initial particles): no particle or contact numbers")
         lines.append(f"time step: dt = {case.time.dt:g} s (no particles: no contact time-step limit)")
     else:
@@ -884,7 +885,7 @@ def describe_case(case: Case) -> list[str]:
         inl = sluice_inlet(case)
         lines.append(f"inlet: {case.inlet.mass_rate:g} kg/s through a bcc sluice of {inl.lattice.per_period} particles "
                      f"per {inl.lattice.a * 1e3:.3f} mm, feed velocity {inl.velocity:.4g} m/s")
-    if has_particles(case):
+    if particles:
         n = expected_particles(case)
         lines.append(f"expected particles: about {n:,}; memory about {memory_estimate(n) / 2 ** 20:.0f} MiB")
     steps = int(math.ceil(case.time.end_time / case.time.dt))

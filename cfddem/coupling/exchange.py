@@ -875,14 +875,11 @@ def _diag_lines(grid, d, rho_p, rho, mu, closure, dt, N, gas_stable_dt, treatmen
                      f"dt/tau = {dt / min(tau_t, tau_d):.3g}, dt_g/tau = {dtg / min(tau_t, tau_d):.3g}"
                      + (" (explicit drag unstable: dt_g > 2 tau)" if treatment == "explicit"
                         and dtg > 2 * min(tau_t, tau_d) else ""))
-    # gas_stable_dt: GasSolver.stable_dt_limits() (each limit named) or one number
-    if isinstance(gas_stable_dt, dict):
-        label = {"advective": "advective at the present gas velocity", "viscous": "viscous (explicit)",
-                 "coriolis": "Coriolis"}
-        named = ", ".join(f"{label.get(k, k)} {v:.3g} s" for k, v in gas_stable_dt.items() if math.isfinite(v))
-        stable = f"gas stable step {min(gas_stable_dt.values()):.3g} s" + (f" ({named})" if named else " (no limit)")
-    else:
-        stable = f"gas stable step {gas_stable_dt:.3g} s"
+    # gas_stable_dt: GasSolver.stable_dt_limits(), each limit named
+    label = {"advective": "advective at the present gas velocity", "viscous": "viscous (explicit)",
+             "coriolis": "Coriolis"}
+    named = ", ".join(f"{label.get(k, k)} {v:.3g} s" for k, v in gas_stable_dt.items() if math.isfinite(v))
+    stable = f"gas stable step {min(gas_stable_dt.values()):.3g} s" + (f" ({named})" if named else " (no limit)")
     if u_scale:
         cfl = dtg * sum(u_scale / hh for hh in h)
         lines.append(f"gas CFL estimate at {u_scale:.3g} m/s: {cfl:.3g}; {stable}")

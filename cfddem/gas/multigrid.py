@@ -110,6 +110,13 @@ def _pk(k, n):
     return (k >> 1) if (k & 1) == 0 else ((n + 1) >> 1) + (k >> 1)
 
 
+@kernel(inline="always")
+def _dirichlet_axes(dirich):
+    """Whether each axis (x, y, z) has a Dirichlet side, from the six sides' flags."""
+    return (dirich[0] == 1 or dirich[1] == 1, dirich[2] == 1 or dirich[3] == 1,
+            dirich[4] == 1 or dirich[5] == 1)
+
+
 @parallel_kernel
 def _fine_coefficients(ax, ay, az, sc, dirich, periodic, cE, cN, cT, dX, dY, dZ):
     """Level-0 weights (volume-scaled): cE[U(c)] couples c to its +x neighbour (wrapping), zero
@@ -120,9 +127,7 @@ def _fine_coefficients(ax, ay, az, sc, dirich, periodic, cE, cN, cT, dX, dY, dZ)
     written: they are zero from their allocation on and stay so (less memory traffic)."""
     nx, ny, nz = ax.shape[0] - 1, ay.shape[1] - 1, az.shape[2] - 1
     h = (nz + 1) // 2
-    hx = dirich[0] == 1 or dirich[1] == 1
-    hy = dirich[2] == 1 or dirich[3] == 1
-    hz = dirich[4] == 1 or dirich[5] == 1
+    hx, hy, hz = _dirichlet_axes(dirich)
     for i in prange(nx):
         cutx = i == nx - 1 and (periodic[0] == 0 or nx == 1)
         for j in range(ny):
@@ -223,9 +228,7 @@ def _coarsen_and_factor(LV, AOFF, AXI, AXF, ZP, ZF, cE, cN, cT, dX, dY, dZ, dg, 
     Dirichlet array of an axis without a Dirichlet side is all zero and neither read nor
     written.  Returns 0, or 1 if the coarsest matrix is not positive definite."""
     L = LV.shape[0]
-    hx = dirich[0] == 1 or dirich[1] == 1
-    hy = dirich[2] == 1 or dirich[3] == 1
-    hz = dirich[4] == 1 or dirich[5] == 1
+    hx, hy, hz = _dirichlet_axes(dirich)
     for l in range(L - 1):
         nx, ny, nz, off = LV[l, 0], LV[l, 1], LV[l, 2], LV[l, 3]
         mx, my, mz, offc = LV[l + 1, 0], LV[l + 1, 1], LV[l + 1, 2], LV[l + 1, 3]

@@ -322,12 +322,9 @@ class GasSolver:
                 s_n[c] = -1
                 s_0[c] = 0
                 coefs[c][tuple(s_n)] = coefs[c][tuple(s_0)]
-        if self.pressure_solver == "mg":
-            # with drag the coefficients change at every step: no comparison with the last
-            # set-up's (it skips nothing and its copy costs memory traffic)
-            self.psolver.set_coefficients(*coefs, compare=K is None)
-        else:
-            self.psolver.set_coefficients(*coefs)
+        # "mg": with drag the coefficients change at every step, so no comparison with the
+        # last set-up's (it skips nothing and its copy costs memory traffic)
+        self.psolver.set_coefficients(*coefs, **({"compare": K is None} if self.pressure_solver == "mg" else {}))
         nx, ny, nz = grid.shape
         dx, dy, dz = grid.spacing
         pressure_rhs_kernel(vel[0], vel[1], vel[2], en, eo, 1.0 / dx, 1.0 / dy, 1.0 / dz, dt, rho, g, self._b)
