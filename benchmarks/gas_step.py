@@ -421,17 +421,18 @@ def recorded_inputs(arrs, i):
     return float(arrs[f"dt_{i}"]), arrs[f"eps_{i}"], get("S"), get("K"), get("Up")
 
 
-def replay_once(rec, guess="scaled", warm=3, flush_mb=0):
-    """Time the recorded gas steps once (the first ``warm`` untimed); returns per-step means.
-    ``flush_mb`` > 0: before each step (outside the timing) write a buffer of that many MB,
-    which evicts the gas solver's arrays from the caches as the particle steps between two
-    gas steps of the coupled run do (512 MB reproduces the coupled run's per-kernel times on
-    the 2-core machines; 64 MB does not evict them)."""
-    n = int(rec["steps"])
-    arrs = {k: rec[k] for k in rec.files}  # loaded once, outside the timing
-    s = replay_solver(rec, guess)
-    flush = np.zeros(int(flush_mb * 2**20) // 8) if flush_mb > 0 else None
-    its, wall, cpu, defect = [], 0.0, 0.0, 0.0
+def flush_buffer(flush_mb):
+    """The buffer that :func:`replayed_steps` writes before each step (None for 0 MB)."""
+    return np.zeros(int(flush_mb * 2**20) // 8) if flush_mb > 0 else None
+
+
+def replayed_steps(s, arrs, n, flush=None):
+    """Run GasSolver ``s`` through the ``n`` recorded steps of ``arrs``; yield (i, info, wall
+    s, CPU s) per step, the times of ``set_porosity`` and ``step`` together.  ``flush``
+    (:func:`flush_buffer`): written before each step, outside the timing, which evicts the gas
+    solver's arrays from the caches as the particle steps between two gas steps of the
+    coupled run do (512 MB reproduces the coupled run's per-kernel times on the 2-core
+    machines; 64 MB does not evict them)."""
     for i in range(n):
         dt, eps, S, K, Up = recorded_inputs(arrs, i)
         if flush is not None:
@@ -439,9 +440,21 @@ def replay_once(rec, guess="scaled", warm=3, flush_mb=0):
         w0, c0 = time.perf_counter(), time.process_time()
         s.set_porosity(eps)
         info = s.step(dt, source=S, drag_K=K, drag_Up=Up)
+        yield i, info, time.perf_counter() - w0, time.process_time() - c0
+
+
+def replay_once(rec, guess="scaled", warm=3, flush_mb=0):
+    """Time the recorded gas steps once (the first ``warm`` untimed); returns per-step means.
+    ``flush_mb`` > 0: before each step (outside the timing) write a buffer of that many MB
+    (:func:`replayed_steps`)."""
+    n = int(rec["steps"])
+    arrs = {k: rec[k] for k in rec.files}  # loaded once, outside the timing
+    s = replay_solver(rec, guess)
+    its, wall, cpu, defect = [], 0.0, 0.0, 0.0
+    for i, info, w, c in replayed_steps(s, arrs, n, flush_buffer(flush_mb)):
         if i >= warm:
-            wall += time.perf_counter() - w0
-            cpu += time.process_time() - c0
+            wall += w
+            cpu += c
             its.append(info.pressure_iterations)
             defect = max(defect, info.max_divergence)
         if not info.ok:
@@ -458,26 +471,20 @@ def replay_tol_sweep(path, tols=(0.5, 1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 
     the reference's range, and max relative error of the pressure gradient on the faces: the
     pressure force on the particles).  The loosest tolerances show the floor: the cost of a
     step with next to no pressure solve (0.5: under one CG iteration), and the defect that
-    the coupled run's stop criterion (1e-4) would not accept.  ``flush_mb``: as in
-    :func:`replay_once` (512: the coupled run's cold caches)."""
+    the coupled run's stop criterion (1e-4) would not accept.  ``flush_mb``: MB written before
+    each step, outside the timing (:func:`replayed_steps`; 512: the coupled run's cold caches)."""
     rec = np.load(path)
     n = int(rec["steps"])
     arrs = {k: rec[k] for k in rec.files}
-    flush = np.zeros(int(flush_mb * 2**20) // 8) if flush_mb > 0 else None
+    flush = flush_buffer(flush_mb)
 
     def run_tol(tol):
         s = replay_solver(rec)
         s.psolver.tol = tol
         its, defect, cpu, wall = [], 0.0, 0.0, 0.0
-        for i in range(n):
-            dt, eps, S, K, Up = recorded_inputs(arrs, i)
-            if flush is not None:
-                flush[:] += 1.0
-            w0, c0 = time.perf_counter(), time.process_time()
-            s.set_porosity(eps)
-            info = s.step(dt, source=S, drag_K=K, drag_Up=Up)
-            cpu += time.process_time() - c0
-            wall += time.perf_counter() - w0
+        for _, info, w, c in replayed_steps(s, arrs, n, flush):
+            cpu += c
+            wall += w
             its.append(info.pressure_iterations)
             defect = max(defect, info.max_divergence)
         grads = [np.diff(s.p.interior, axis=d) / s.grid.spacing[d] for d in range(3)]
