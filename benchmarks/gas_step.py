@@ -399,14 +399,14 @@ def record(checkpoint, out, grid="16x15x150", interval=10, steps=40, warm=100):
 def replay_solver(rec, guess="scaled"):
     """A GasSolver of the chute case on the recorded grid, in the recorded state."""
     from cfddem.config import load_case
-    from cfddem.coupling.exchange import _chute_setup
+    from cfddem.scenes import scene_of
     repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     cells = "[" + ",".join(str(rec["grid"]).split("x")) + "]"
     case = load_case(os.path.join(repo, "cases", "chute_16rpm"), overrides=[f"gas.cells={cells}"])
-    grid, bcs, g, om, ap, _ = _chute_setup(case)
+    dom = scene_of(case).gas_domain(case)
     kw = {} if guess is None else {"initial_guess": guess}
-    s = GasSolver(grid, rho=case.gas.density, mu=case.gas.viscosity, bcs=bcs, gravity=tuple(g), omega=tuple(om),
-                  axis_point=ap, pressure_solver=case.gas.pressure_solver, **kw)
+    s = GasSolver(dom.grid, rho=case.gas.density, mu=case.gas.viscosity, bcs=dom.bcs, gravity=dom.gravity,
+                  omega=dom.omega, axis_point=dom.axis_point, pressure_solver=case.gas.pressure_solver, **kw)
     st = {k[6:]: rec[k] for k in rec.files if k.startswith("state_")}
     st["amg_reference_coefficients"] = None
     s.set_state(st)

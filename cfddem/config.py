@@ -22,6 +22,11 @@ from pathlib import Path
 from typing import Any
 
 from .errors import CaseError
+from .scenes import DEFAULT_SCENE, SCENE_TYPES, scene_class, scene_docs, scene_schemas
+from .schema import Key
+from .schema import nonneg as _nonneg
+from .schema import number as _f
+from .schema import positive as _pos
 
 INF = float("inf")
 
@@ -29,45 +34,6 @@ INF = float("inf")
 # --------------------------------------------------------------------------------------------
 # schema
 # --------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Key:
-    """One case-file key: its type, default, unit, meaning and allowed range."""
-
-    type: str  # float | int | bool | str | vec3 | floats | ints | bools3 | tables
-    default: Any
-    unit: str
-    doc: str
-    lo: float | None = None  # lower bound
-    hi: float | None = None  # upper bound
-    lo_open: bool = False  # lower bound excluded
-    hi_open: bool = False
-    choices: tuple[str, ...] | None = None
-    required: bool = False
-
-    def describe_range(self) -> str:
-        if self.choices:
-            return "one of " + ", ".join(repr(c) for c in self.choices)
-        if self.lo is None and self.hi is None:
-            return ""
-        lo = "-inf" if self.lo is None else f"{self.lo:g}"
-        hi = "inf" if self.hi is None else f"{self.hi:g}"
-        lb = "(" if (self.lo_open or self.lo is None) else "["
-        hb = ")" if (self.hi_open or self.hi is None) else "]"
-        return f"{lb}{lo}, {hi}{hb}"
-
-
-def _f(default, unit, doc, **kw):
-    return Key("float", default, unit, doc, **kw)
-
-
-def _pos(default, unit, doc, **kw):
-    return Key("float", default, unit, doc, lo=0.0, lo_open=True, **kw)
-
-
-def _nonneg(default, unit, doc, **kw):
-    return Key("float", default, unit, doc, lo=0.0, **kw)
-
-
 def _contact_section(mu_default: float, e_n_default: float) -> dict:
     return {
         "k_n": _pos(1000.0, "N/m", "normal spring stiffness of the linear spring-dashpot law"),
@@ -79,90 +45,6 @@ def _contact_section(mu_default: float, e_n_default: float) -> dict:
         "nu": _f(0.25, "-", "hertz_mindlin: Poisson ratio", lo=-1.0, lo_open=True, hi=0.5),
         "e": _f(e_n_default, "-", "hertz_mindlin: coefficient of restitution", lo=0.0, lo_open=True, hi=1.0),
     }
-
-
-def _wall_override(what: str) -> dict:
-    """Per-wall contact overrides of the silo (unset: contact.particle_wall)."""
-    return {k: Key("float", None, u, f"{what}: {doc} (default: contact.particle_wall.{k})", lo=0.0)
-            for k, u, doc in (("mu", "-", "sliding friction"), ("mu_r", "-", "rolling friction"),
-                              ("e_n", "-", "normal restitution"), ("e_t", "-", "tangential restitution"),
-                              ("k_n", "N/m", "normal stiffness"), ("E", "Pa", "Young's modulus (hertz_mindlin)"),
-                              ("nu", "-", "Poisson ratio (hertz_mindlin)"), ("e", "-", "restitution (hertz_mindlin)"))}
-
-
-_SHEAR_SCHEMA = {
-    "variant": Key("str", "bulk", "-", "'bulk': base ring + shear ring (bulk friction); 'wall': the base ring "
-                   "replaced by a flat plate at the shear plane (wall friction)", choices=("bulk", "wall")),
-    "cell_diameter": _pos(0.095, "m", "inner diameter D of both rings (axis = y through x = z = 0)"),
-    "base_height": _pos(0.013, "m", "height of the base ring (y from 0; the shear plane is its top)"),
-    "ring_height": _pos(0.016, "m", "height of the shear ring above the base ring"),
-    "ring_offset": _nonneg(0.003, "m", "initial offset of the shear ring against the shear direction (-x)"),
-    "wall_thickness": _pos(0.003, "m", "ring wall thickness: the width of the ledges (ring faces) at the shear plane"),
-    "normal_stress": _pos(4000.0, "Pa", "consolidation stress sigma on the lid: load sigma pi D^2 / 4"),
-    "load_ramp_time": _nonneg(0.05, "s", "the lid load ramps linearly from 0 over this time"),
-    "shear_speed": _pos(0.003, "m/s", "speed of the shear ring and lid"),
-    "shear_distance": _pos(0.006, "m", "travel of the shear ring (the run stops there)"),
-    "n_particles": Key("int", 3000, "-", "particles (or clumps) of the fill lattice (overfilled, then scraped)", lo=1),
-    "lattice_gap": _f(0.1, "-", "fill lattice spacing d (1 + gap)", lo=0.0, lo_open=True, hi=2.0),
-    "lattice_jitter": _f(0.05, "-", "random displacement of the sites, up to +-jitter d / 2 per axis", lo=0.0, hi=2.0),
-    "fill_time": _nonneg(0.2, "s", "earliest end of the fill (settled check)"),
-    "settle_energy": _pos(1e-8, "J", "kinetic energy per particle below which the fill counts as settled"),
-    "consolidate_time": _nonneg(0.05, "s", "shortest consolidation after the lid is placed"),
-    "lid_settle_speed": _pos(2e-3, "m/s", "consolidation ends when the lid's vertical speed is below this"),
-    "lid_sphere_diameter": _nonneg(0.0, "m", "diameter of the lid's glued spheres (0: particles.diameter)"),
-    "lid_clearance": _nonneg(0.0005, "m", "gap between the lid's outline and the ring"),
-    "lid_density": _pos(7800.0, "kg/m3", "density of the lid's spheres (its weight is cancelled; sets its inertia)"),
-    "check_steps": Key("int", 20, "-", "steps between the scene's checks (load update, force sampling)", lo=1),
-    "sample_interval": _pos(0.01, "s", "interval of the averaged shear samples (/measurements/shear)"),
-    "steady_window": Key("floats", [0.5, 1.0], "-", "bulk friction: mean over shear displacements between these "
-                         "fractions of shear_distance"),
-    "rings": _wall_override("base ring, bottom and shear ring"),
-    "plate": _wall_override("wall-friction plate (variant 'wall')"),
-}
-
-
-_SILO_SCHEMA = {
-    "width": _pos(0.15, "m", "inner width of the planar silo (x from 0 to width; y up, the outlet plane at y = 0)"),
-    "depth": _pos(0.04, "m", "distance between the front (z = 0) and back (z = depth) walls"),
-    "height": _nonneg(0.0, "m", "height of the side walls above the outlet plane (0: the top of the fill lattice + 2 d)"),
-    "outlet_width": _pos(0.04, "m", "width b of the slot outlet (full depth), centred at x = width/2"),
-    "hopper_angle_deg": _f(0.0, "deg", "hopper wall inclination measured from the HORIZONTAL (0: flat bottom; "
-                           "60: walls at 60 deg to the horizontal, 30 deg from the vertical)", lo=0.0, hi=80.0),
-    "lip": _nonneg(0.0, "m", "thickness of the bottom plate: vertical lip walls line the slot from y = -lip to 0 and "
-                   "the gate closes it at y = -lip (0: one particle diameter)"),
-    "removal_depth": _nonneg(0.0, "m", "particles whose centre falls below y = -removal_depth are removed as "
-                             "discharged (0: lip + 1.5 d)"),
-    "n_particles": Key("int", 2000, "-", "particles of the fill lattice", lo=1),
-    "fill": Key("str", "lattice", "-", "'lattice': n_particles on a loose jittered lattice above the bottom, dropped "
-                "and settled; 'pour': jittered lattice layers inserted at pour_height at the mass rate pour_rate "
-                "until n_particles are in", choices=("lattice", "pour")),
-    "pour_rate": _pos(0.5, "kg/s", "pour: mass rate of the pour (one lattice layer every layer mass / rate; a layer "
-                      "that would overlap waits)"),
-    "pour_height": _nonneg(0.0, "m", "pour: height of the inserted layers (0: the top of the lattice fill of the same "
-                           "n_particles)"),
-    "lattice_gap": _f(0.12, "-", "fill lattice spacing d (1 + lattice_gap)", lo=0.0, lo_open=True, hi=2.0),
-    "lattice_jitter": _f(0.08, "-", "random displacement of each lattice site, up to +-jitter d / 2 per axis "
-                         "(seeded by particles.seed; must be below lattice_gap)", lo=0.0, hi=2.0),
-    "gate": Key("str", "settled", "-", "'time': the gate opens at gate_time; 'settled': at the first check at or "
-                "after gate_time where the kinetic energy per particle is below settle_energy",
-                choices=("time", "settled")),
-    "gate_time": _nonneg(0.3, "s", "gate opening time ('time') or earliest opening time ('settled')"),
-    "settle_energy": _pos(2e-9, "J", "kinetic energy per particle below which the fill counts as settled"),
-    "settle_check_interval": _pos(0.01, "s", "interval of the settled / clogged / empty checks"),
-    "clog_time": _pos(0.5, "s", "no outflow for this long while particles remain just above the slot: clogged "
-                      "(the run stops); with none there: discharge ended (empty)"),
-    "fit_range": Key("floats", [0.2, 0.8], "-", "mass flow rate: linear fit of discharged mass against time between "
-                     "these fractions of the final discharged mass"),
-    "field_cell": _nonneg(0.0, "m", "cell size of the time-averaged x-y velocity field (0: 2 d)"),
-    "field_interval": _pos(0.01, "s", "sampling interval of the velocity field during discharge"),
-    "field_start": _nonneg(0.1, "s", "velocity field: start averaging this long after the gate opened"),
-    "channel_fraction": _f(0.1, "-", "flow-channel boundary: where the downward speed falls below this fraction "
-                           "of the centreline speed", lo=0.0, lo_open=True, hi=1.0, hi_open=True),
-    "front_back": _wall_override("front and back walls"),
-    "sides": _wall_override("side walls"),
-    "bottom": _wall_override("bottom plates or hopper walls, and the slot lips"),
-    "gate_wall": _wall_override("gate"),
-}
 
 
 SCHEMA: dict[str, dict] = {
@@ -231,52 +113,20 @@ SCHEMA: dict[str, dict] = {
         "particle_wall": _contact_section(0.22, 0.95),
     },
     "geometry": {
-        "type": Key("str", "chute", "-", "'chute': floor + two side walls (+ a back wall at the entrance); "
-                    "'box': six walls lo..hi; 'silo': the planar silo of [silo]; 'shear_cell': the Jenike shear "
-                    "cell of [shear]; 'none': walls only from [[geometry.walls]]",
-                    choices=("chute", "box", "silo", "shear_cell", "none")),
-        "width": _pos(0.08, "m", "chute width (x from 0 to width)"),
-        "depth": _pos(0.045, "m", "height of the chute side walls (y from 0 to depth)"),
-        "length": _pos(0.9, "m", "chute length (z from z_start to z_start + length)"),
-        "z_start": _f(-0.1, "m", "z of the chute entrance (the measurement origin is z = 0)"),
-        "back_wall": Key("bool", True, "-", "close the chute entrance with a wall at z = z_start"),
-        "lo": Key("vec3", [0.0, 0.0, 0.0], "m", "box: lower corner"),
-        "hi": Key("vec3", [0.1, 0.1, 0.1], "m", "box: upper corner"),
-        "periodic": Key("bools3", [False, False, False], "-", "box: periodic axes (no walls on those axes)"),
+        "type": Key("str", DEFAULT_SCENE, "-", "the scene (cfddem/scenes/): " + scene_docs(), choices=SCENE_TYPES),
         "walls": Key("tables", [], "-", "extra walls: [[geometry.walls]] with type = 'plane' (point, normal) or "
                      "'rectangle' (point = centre, normal, u_axis, half_extents = [a, b]) or 'cylinder' (the inside of a ring: "
                      "point = centre, axis, radius, half_height, optional inside = false for the outer surface); "
                      "optional contact keys mu, mu_r, e_n, e_t, k_n (linear) or E, nu, e (hertz_mindlin)"),
     },
-    "silo": _SILO_SCHEMA,
-    "shear": _SHEAR_SCHEMA,
-    "inlet": {
-        "type": Key("str", "none", "-", "'sluice': bcc lattice layers across the chute entrance at a mass rate",
-                    choices=("none", "sluice")),
-        "mass_rate": _pos(1.6, "kg/s", "mass feed rate"),
-        "height": _pos(0.045, "m", "sluice height above the floor"),
-        "z": Key("float", None, "m", "upstream edge of the sluice (default: geometry.z_start)"),
-        "start_time": _nonneg(0.0, "s", "feeding starts"),
-        "end_time": _pos(INF, "s", "feeding stops"),
-        "gap": _nonneg(0.1, "-", "extra bcc lattice spacing as a fraction of the diameter: room for the settling of the previous layer, so new layers do not wait"),
-        "hold_length": Key("float", None, "m", "fed particles move at the feed velocity, unaffected by forces, until they are this far "
-                           "past the insertion plane, pushing what is ahead like the material behind a sluice gate "
-                           "(default: one lattice period, about 1.3 d; 0: released at once)", lo=0.0),
-    },
     "exit": {
-        "z": Key("float", None, "m", "particles with z beyond this plane leave the simulation "
-                 "(default: the chute end, z_start + length; chute only)"),
         "lost_margin": _pos(0.5, "m", "particles farther than this outside the walls' bounding box are removed as lost"),
     },
     "measurements": {
-        "enabled": Key("bool", True, "-", "chute measurements (bed height, surface velocity, mean velocity)"),
-        "start_time": _nonneg(0.0, "s", "time averages start here (steady state)"),
+        "enabled": Key("bool", True, "-", "the scene's sampled measurements (the chute: bed height, surface velocity, "
+                       "mean velocity)"),
+        "start_time": _nonneg(0.0, "s", "time averages (the scene's and the gas's) start here (steady state)"),
         "interval": _pos(0.01, "s", "sampling interval of the time averages"),
-        "stations": Key("floats", [0.0, 0.2, 0.4, 0.6], "m", "streamwise positions z of the cross-width profiles"),
-        "sensors_x": Key("floats", [0.015, 0.045, 0.065], "m", "x of the left, centre and right bed-height sensors"),
-        "cell_x": _pos(0.005, "m", "measurement cell size across the chute"),
-        "cell_z": _pos(0.006, "m", "measurement cell size along the chute"),
-        "n_top": Key("int", 6, "-", "topmost particles per cell for the surface velocity", lo=1),
     },
     "study": {
         "compare_without_gas": Key("bool", False, "-", "after a run with gas, run the same case without gas into "
@@ -286,17 +136,13 @@ SCHEMA: dict[str, dict] = {
         "enabled": Key("bool", False, "-", "solve the interstitial gas (two-way coupled)"),
         "density": _pos(1.2, "kg/m^3", "gas density"),
         "viscosity": _pos(1.8e-5, "Pa s", "gas dynamic viscosity"),
-        "cells": Key("ints", [16, 15, 150], "-", "gas grid NX, NY, NZ"),
-        "height": _pos(0.045, "m", "height of the gas domain above the floor"),
+        "cells": Key("ints", [16, 15, 150], "-", "gas grid NX, NY, NZ", length=3),
         "coupling_interval": Key("int", 10, "-", "particle steps per gas step", lo=1),
         "drag_treatment": Key("str", "implicit", "-", "'implicit': drag implicit in the gas step and bounded "
                               "(exact exponential relaxation) for the particles, stable for any particle relaxation "
                               "time; 'explicit': forward Euler, for comparison", choices=("implicit", "explicit")),
         "drag": Key("str", "beetstra", "-", "drag closure",
                     choices=("beetstra", "wen_yu", "ergun_gidaspow", "di_felice", "koch_hill")),
-        "lid": Key("str", "crosswind", "-", "open-top boundary: 'crosswind' (lab air at rest seen from the rotating "
-                   "frame), 'slip' (free slip) or 'wall' (no slip)", choices=("crosswind", "slip", "wall")),
-        "inlet_velocity": Key("float", None, "m/s", "co-flow velocity at the entrance (default: the feed velocity)"),
         "pressure_solver": Key("str", "mg", "-", "pressure solver: 'mg' (compiled geometric multigrid as CG "
                                "preconditioner) or 'amg' (pyamg smoothed aggregation, for comparison)",
                                choices=("mg", "amg")),
@@ -306,6 +152,35 @@ SCHEMA: dict[str, dict] = {
     },
 }
 
+
+
+def _assemble(base: dict, scenes: dict[str, dict]) -> tuple[dict, dict]:
+    """The full schema: the base sections with every scene's keys merged in (a scene's new
+    sections right after ``[geometry]``), and the owner of each scene key."""
+    owner: dict[tuple[str, str], set[str]] = {}
+    added: dict[str, dict] = {}
+    for name, parts in scenes.items():
+        for sec, keys in parts.items():
+            target = base.get(sec)
+            if target is None:
+                target = added.setdefault(sec, {})
+            for k, spec in keys.items():
+                prev = owner.get((sec, k))
+                if k in target and prev is None:
+                    raise AssertionError(f"scene {name!r} redefines the shared key {sec}.{k}")
+                if prev is not None and target[k] != spec:
+                    raise AssertionError(f"scenes {sorted(prev)} and {name!r} define {sec}.{k} differently")
+                target[k] = spec
+                owner.setdefault((sec, k), set()).add(name)
+    out: dict[str, dict] = {}
+    for sec, keys in base.items():
+        out[sec] = keys
+        if sec == "geometry":
+            out.update(added)
+    return out, owner
+
+
+SCHEMA, _SCENE_KEY_OWNER = _assemble(SCHEMA, scene_schemas())
 
 # --------------------------------------------------------------------------------------------
 # resolved configuration objects
@@ -523,10 +398,15 @@ def _check_value(key: str, spec: Key, v: Any) -> Any:
     if t == "floats":
         if not isinstance(v, list):
             raise CaseError(key, f"expected an array of numbers, got {_typename(v)} {v!r}")
-        return [_as_float(f"{key}[{i}]", x) for i, x in enumerate(v)]
+        _check_length(key, spec, v, "numbers")
+        out = [_as_float(f"{key}[{i}]", x) for i, x in enumerate(v)]
+        for i, x in enumerate(out):
+            _check_range(f"{key}[{i}]", spec, x)
+        return out
     if t == "ints":
         if not isinstance(v, list) or not all(isinstance(x, int) and not isinstance(x, bool) for x in v):
             raise CaseError(key, f"expected an array of integers, got {v!r}")
+        _check_length(key, spec, v, "integers")
         if any(x < 1 for x in v):
             raise CaseError(key, f"every entry must be >= 1, got {v!r}")
         return list(v)
@@ -535,6 +415,13 @@ def _check_value(key: str, spec: Key, v: Any) -> Any:
             raise CaseError(key, "expected an array of tables ([[...]] entries)")
         return copy.deepcopy(v)
     raise AssertionError(t)
+
+
+def _check_length(key: str, spec: Key, v: list, what: str) -> None:
+    if spec.length is not None and len(v) != spec.length:
+        raise CaseError(key, f"expected an array of {spec.length} {what}, got {len(v)}: {v!r}")
+    if not v:
+        raise CaseError(key, f"expected an array of {what}, got an empty array")
 
 
 def _suggest_choice(v: str, choices) -> str:
@@ -556,42 +443,22 @@ def _vec(key: str, v, n=3) -> list[float]:
     return [_as_float(f"{key}[{i}]", x) for i, x in enumerate(v)]
 
 
+def _default_of(spec):
+    """The default of a key, or the defaults of a (sub)section."""
+    return {k: _default_of(v) for k, v in spec.items()} if isinstance(spec, dict) else spec.default
+
+
 def _check_consistency(r: dict, case_dir: Path) -> None:
-    p, inl, geo = r["particles"], r["inlet"], r["geometry"]
+    p, geo = r["particles"], r["geometry"]
     d = p["diameter"]
     if p["diameter_max"] and p["diameter_max"] < d:
         raise CaseError("particles.diameter_max", f"{p['diameter_max']:g} is smaller than particles.diameter = {d:g}")
-    dmax = max(d, p["diameter_max"])
-    if geo["type"] == "chute":
-        if dmax >= geo["width"]:
-            raise CaseError("geometry.width", f"{geo['width']:g} m is not wider than a particle ({dmax:g} m)")
-        if inl["z"] is None:
-            inl["z"] = geo["z_start"]
-        if r["exit"]["z"] is None:
-            r["exit"]["z"] = geo["z_start"] + geo["length"]
-        z0, z1 = geo["z_start"], geo["z_start"] + geo["length"]
-        if inl["type"] == "sluice":
-            if not (z0 <= inl["z"] < z1):
-                raise CaseError("inlet.z", f"{inl['z']:g} m is outside the chute (z from {z0:g} to {z1:g} m)")
-            if inl["height"] > geo["depth"] + 1e-12:
-                raise CaseError("inlet.height", f"{inl['height']:g} m is higher than the side walls "
-                                                f"(geometry.depth = {geo['depth']:g} m)")
-            if inl["height"] < dmax * (1 + inl["gap"]):
-                raise CaseError("inlet.height", f"{inl['height']:g} m does not fit one particle layer")
-        if not (z0 < r["exit"]["z"] <= z1 + 1e-12):
-            raise CaseError("exit.z", f"{r['exit']['z']:g} m is outside the chute (z from {z0:g} to {z1:g} m)")
-    else:
-        if inl["type"] != "none":
-            raise CaseError("inlet.type", f"'{inl['type']}' needs geometry.type = 'chute'")
-        if inl["z"] is None:
-            inl["z"] = 0.0
-    if geo["type"] == "box":
-        lo, hi = geo["lo"], geo["hi"]
-        for i in range(3):
-            if hi[i] <= lo[i]:
-                raise CaseError("geometry.hi", f"hi[{i}] = {hi[i]:g} must be above lo[{i}] = {lo[i]:g}")
-    elif any(geo["periodic"]):
-        raise CaseError("geometry.periodic", "periodic axes need geometry.type = 'box'")
+    scene = scene_class(geo["type"])
+    for (sec, k), owners in _SCENE_KEY_OWNER.items():
+        if geo["type"] not in owners and r[sec][k] != _default_of(SCHEMA[sec][k]):
+            names = " or ".join(f"'{o}'" for o in sorted(owners))
+            raise CaseError(f"{sec}.{k}", f"needs geometry.type = {names} (this case has '{geo['type']}')")
+    scene.check(r, case_dir)
     for i, w in enumerate(geo["walls"]):
         key = f"geometry.walls[{i}]"
         for k in w:
@@ -657,27 +524,15 @@ def _check_consistency(r: dict, case_dir: Path) -> None:
             raise CaseError("particles.initial_file", f"file not found: {f}")
         if f.suffix.lower() not in (".csv", ".h5", ".hdf5"):
             raise CaseError("particles.initial_file", f"unsupported file type '{f.suffix}': use .csv or .h5")
-    m = r["measurements"]
-    if m["start_time"] >= r["time"]["end_time"] and m["enabled"] and geo["type"] == "chute":
-        # averaging would never start: start at half the run instead would silently change the
-        # meaning; refuse
-        raise CaseError("measurements.start_time", f"{m['start_time']:g} s is not before time.end_time = "
-                                                   f"{r['time']['end_time']:g} s: nothing would be averaged")
-    if geo["type"] == "silo":
-        from .scenes.silo import check_silo_case
-
-        check_silo_case(r)
-    if geo["type"] == "shear_cell":
-        from .scenes.shear import check_shear_case
-
-        check_shear_case(r)
-    if p["clump"] != "none" and geo["type"] not in ("shear_cell", "silo") and r["inlet"]["type"] != "sluice":
-        raise CaseError("particles.clump", "pellets are inserted by the shear_cell and silo fills and the sluice "
-                                           "inlet only (initial particles are spheres): this case has none of them")
+    if p["clump"] != "none" and not scene.inserts_clumps(r):
+        raise CaseError("particles.clump", "clumps are inserted by a scene's fill or inlet only (initial particles "
+                                           f"are spheres): geometry.type = '{geo['type']}' with these settings has none")
     if p["clump"] != "none" and p["diameter_max"] > 0:
         raise CaseError("particles.diameter_max", "pellets (particles.clump) are monodisperse: leave it 0")
-    if geo["type"] != "chute" and r["gas"]["enabled"]:
-        raise CaseError("gas.enabled", "the gas phase is available for geometry.type = 'chute' only")
+    if r["gas"]["enabled"] and not scene.HAS_GAS:
+        with_gas = ", ".join(f"'{n}'" for n in SCENE_TYPES if scene_class(n).HAS_GAS)
+        raise CaseError("gas.enabled", f"geometry.type = '{geo['type']}' declares no gas domain (scenes with gas: "
+                                       f"{with_gas})")
     if r["frame"]["rpm"] != 0 and r["gravity"]["g"] == 0:
         raise CaseError("frame.rpm", "a rotating frame needs gravity to define the vertical axis (gravity.g > 0)")
 
@@ -741,17 +596,28 @@ def schema_markdown() -> str:
     """The reference of every key (``docs/case-format.md`` body)."""
     out = []
 
+    def scenes_of(prefix: str, k: str | None = None) -> str:
+        """'' or ' (geometry.type = ...)' for a key or section a scene contributes."""
+        top, *rest = prefix.split(".")
+        owners = _SCENE_KEY_OWNER.get((top, rest[0] if rest else k))
+        if not owners or (k is not None and rest):  # keys inside a scene's section: said at the header
+            return ""
+        return " (geometry.type = " + " or ".join(f"'{o}'" for o in sorted(owners)) + ")"
+
     def walk(sec: dict, prefix: str):
         rows = []
         subs = []
+        whole = bool(scenes_of(prefix)) and "." in prefix or all(scenes_of(prefix, k) for k in sec)
         for k, spec in sec.items():
             if isinstance(spec, dict):
                 subs.append((k, spec))
             else:
                 rng = spec.describe_range()
-                rows.append(f"| `{k}` | {spec.type} | {spec.unit} | `{_fmt_default(spec.default)}` | {rng} | {spec.doc} |")
+                doc = spec.doc if whole else (f"*{scenes_of(prefix, k)[2:-1]}:* " if scenes_of(prefix, k) else "") + spec.doc
+                rows.append(f"| `{k}` | {spec.type} | {spec.unit} | `{_fmt_default(spec.default)}` | {rng} | {doc} |")
         if rows:
-            out.append(f"\n### `[{prefix}]`\n")
+            head = (scenes_of(prefix) if "." in prefix else scenes_of(prefix, next(iter(sec)))) if whole else ""
+            out.append(f"\n### `[{prefix}]`{head}\n")
             out.append("| key | type | unit | default | allowed | meaning |")
             out.append("|---|---|---|---|---|---|")
             out.extend(rows)
@@ -768,7 +634,12 @@ CASE_FORMAT_HEADER = """# Case format
 
 A case is a folder holding `case.toml` (TOML, SI units). Every key is optional unless marked;
 the defaults are below. Unknown keys, wrong types and out-of-range values are refused with a
-one-line error naming the key (exit code 2), with a "did you mean" hint for typos.
+one-line error naming the key (exit code 2), with a "did you mean" hint for typos; arrays must
+have the stated number of entries. A case that does not validate writes nothing.
+
+`geometry.type` names the scene (one module in `cfddem/scenes/`). Keys and sections marked with a
+geometry type belong to that scene: setting one to a non-default value in a case of another
+scene is refused.
 
 Any key can be overridden on the command line with a dotted path, the value parsed as TOML:
 

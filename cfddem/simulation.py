@@ -27,7 +27,8 @@ from . import __version__
 from ._jit import get_threads, set_threads
 from .config import Case
 from .errors import CaseError, RunError
-from .scene import frame_omega, gravity_vector, initial_particles, wall_specs, walls_bounding_box
+from .scenes import scene_of
+from .scenes.common import frame_omega, gravity_vector, initial_particles, wall_specs, walls_bounding_box
 
 RUN_MARKER = "run.json"  # written by every run: how we recognise our own run folders
 
@@ -69,10 +70,9 @@ class Schedule:
             self.k += 1
 
 
-def prepare_out_dir(out: Path, overwrite: bool) -> None:
-    """Create the run folder; refuse an existing non-empty one unless ``overwrite``.
-
-    With ``overwrite`` only what a cfddem run writes is removed (never foreign files)."""
+def check_out_dir(out: Path, overwrite: bool) -> None:
+    """Refuse a run folder that exists and is not one (writes nothing): a non-empty folder
+    unless ``overwrite``, and a non-empty folder that holds no cfddem run at all."""
     if out.exists() and not out.is_dir():
         raise CaseError("--out", f"{out} exists and is not a folder")
     if out.exists() and any(out.iterdir()):
@@ -81,6 +81,14 @@ def prepare_out_dir(out: Path, overwrite: bool) -> None:
         if not (out / RUN_MARKER).exists():
             raise CaseError("--out", f"{out} is not empty and holds no cfddem run ({RUN_MARKER} missing): "
                                      "refusing to delete files the run did not write")
+
+
+def prepare_out_dir(out: Path, overwrite: bool) -> None:
+    """Create the run folder; refuse an existing non-empty one unless ``overwrite``
+    (:func:`check_out_dir`).  With ``overwrite`` only what a cfddem run writes is removed (never
+    foreign files)."""
+    check_out_dir(out, overwrite)
+    if out.exists() and any(out.iterdir()):
         for name in ("results.h5", "results_snapshots", "run.log", "case.resolved.toml", RUN_MARKER, "vtk", "report",
                      "checkpoints", "no_gas", "compare"):
             p = out / name
@@ -128,18 +136,12 @@ class Simulation:
         from .particles.system import ParticleSystem
 
         case = self.case
-        from .scenes import scene_class
-
-        cls = scene_class(case.geometry.type)
-        self.scene = cls(self) if cls is not None else None
-        specs = self.scene.wall_specs() if self.scene is not None else None
-        self.walls = specs if specs is not None else wall_specs(case)
+        cls = scene_of(case)
+        self.scene = cls(self)
+        self.walls = wall_specs(case)
         self.box_lo, self.box_hi = walls_bounding_box(self.walls, case)
         set_threads(self.threads)
-        periodic = (None, None, None)
-        if case.geometry.type == "box":
-            periodic = tuple((case.geometry.lo[i], case.geometry.hi[i]) if case.geometry.periodic[i] else None
-                             for i in range(3))
+        periodic = cls.periodic(case)
         self.system = ParticleSystem(
             pp=contact_law(case.resolved["contact"]["particle_particle"], case.contact.model),
             walls=[engine_wall(w, case.contact.model) for w in self.walls],
@@ -158,24 +160,13 @@ class Simulation:
                 raise CaseError("particles.initial", "initial particles overlap each other")
             self.system.add_particles(init["pos"], init["vel"], init["radius"], case.particles.density,
                                       omega=init["omega"])
-        self.inlet = None
-        if case.inlet.type == "sluice":
-            self.inlet = sluice_inlet(case)
-        self.measure = None
-        if case.geometry.type == "chute" and case.measurements.enabled:
-            from .measure.chute import ChuteMeasurements
-
-            m = case.measurements
-            self.measure = ChuteMeasurements(
-                width=case.geometry.width, z_range=(case.geometry.z_start, case.exit.z), start_time=m.start_time,
-                stations=tuple(m.stations), sensor_x=tuple(m.sensors_x), dx=m.cell_x, dz=m.cell_z, n_top=m.n_top)
+        self.inlet = self.scene.make_inlet()
+        self.measure = self.scene.make_measurements()
         self.gas = None
         if case.gas.enabled:
-            try:
-                from .coupling.exchange import build_coupled_gas
-            except ImportError:
-                raise CaseError("gas.enabled", "the coupled gas solver is not available in this version") from None
-            self.gas = build_coupled_gas(case, self.system, self.log)
+            from .coupling.exchange import build_coupled_gas
+
+            self.gas = build_coupled_gas(case, self.system, cls.gas_domain(case), self.log)
         o = case.output
         self.schedules = {
             "series": Schedule(o.series_interval),
@@ -203,8 +194,9 @@ class Simulation:
             st["measure"] = self.measure.get_state()
         if self.gas is not None:
             st["gas"] = self.gas.get_state()
-        if self.scene is not None:
-            st["scene"] = self.scene.get_state()
+        scene_state = self.scene.get_state()
+        if scene_state:
+            st["scene"] = scene_state
         return st
 
     def set_state(self, st: dict) -> None:
@@ -220,7 +212,7 @@ class Simulation:
             self.measure.set_state(st["measure"])
         if self.gas is not None:
             self.gas.set_state(st["gas"])
-        if self.scene is not None and "scene" in st:
+        if "scene" in st:
             self.scene.set_state(st["scene"])
 
     def write_checkpoint(self) -> Path:
@@ -249,10 +241,19 @@ class Simulation:
                 raise CaseError("--resume", f"no valid checkpoint in {self.out / 'checkpoints'}")
             ckpt_path, state = found
         else:
-            prepare_out_dir(self.out, self.overwrite)
-        self.log = setup_run_logger(self.out, stderr=self.echo)
+            check_out_dir(self.out, self.overwrite)
+        # everything that can refuse the case comes before the first file is written
         if not self._built:
             self.build()
+        branch_note = None
+        if not self.resume:
+            if case.checkpoint.start_from:
+                branch_note = self._branch_from(case.path / case.checkpoint.start_from)
+            check_disk_space(case, self.out)
+            prepare_out_dir(self.out, self.overwrite)
+        self.log = setup_run_logger(self.out, stderr=self.echo)
+        if branch_note:
+            self.log.info(branch_note)
         if self.resume:
             self.set_state(state)
             t = self.system.time
@@ -260,9 +261,6 @@ class Simulation:
             res = ResultsFile(self.out / "results.h5", mode="a")
             res.truncate_after(t)
         else:
-            if case.checkpoint.start_from:
-                self._branch_from(case.path / case.checkpoint.start_from)
-            check_disk_space(case, self.out)
             (self.out / "case.resolved.toml").write_text(case.to_toml())
             res = ResultsFile(self.out / "results.h5", mode="w")
             res.write_config(case.raw_text, case.resolved)
@@ -278,11 +276,11 @@ class Simulation:
                 pv.set_walls(quads)
         return res, pv
 
-    def _branch_from(self, src: Path) -> None:
+    def _branch_from(self, src: Path) -> str:
         """Start from another run's checkpoint (``checkpoint.start_from``): particles with their
         contact history and neighbour list, the inlet, the exit counters and the clock; the gas
         fields when the grid matches.  Averages, timings and the rest start afresh; the schedules
-        continue from the checkpoint's time."""
+        continue from the checkpoint's time.  Returns the line for the run log."""
         from .io.checkpoint import latest_checkpoint, read_checkpoint
 
         key = "checkpoint.start_from"
@@ -320,8 +318,8 @@ class Simulation:
             else:
                 gas_note = "; gas starts afresh (the source run had none)"
         self.branched_from = str(path)
-        self.log.info("branched from %s at t = %.6g s (step %d, %d particles)%s", path, t,
-                      self.system.step_count, self.system.n, gas_note)
+        return f"branched from {path} at t = {t:.6g} s (step {self.system.step_count}, {self.system.n} particles)" \
+               f"{gas_note}"
 
     def _install_signals(self):
         if threading.current_thread() is not threading.main_thread():
@@ -345,6 +343,9 @@ class Simulation:
         log.info("cfddem %s: case %s -> %s (threads: %d)", __version__, case.name, self.out, get_threads())
         for line in describe_case(case):
             log.info(line)
+        if self.gas is not None:
+            for line in self.gas.diagnostics()[:-1]:
+                log.info("gas: %s", line)
         check_time_step(case, log=log)
         t_wall0 = _time.perf_counter()
         dt = self.dt
@@ -395,22 +396,19 @@ class Simulation:
         try:
             scene = self.scene
             if not self.resume:
-                if scene is not None:
-                    scene.start()
+                scene.start()
                 self._feed_and_drain()
                 outputs()
             while sys_.time < self.end_time - 0.5 * dt:
                 t = sys_.time
                 targets = [self.end_time] + [s.next_time for s in sch.values()]
-                if scene is not None:
-                    targets.append(scene.next_time(t))
+                targets.append(scene.next_time(t))
                 if self.inlet is not None and self.inlet.start_time <= t < self.inlet.end_time:
                     targets.append(self.inlet.next_due_time())
                 later = [x for x in targets if x > t + 0.5 * dt]
                 n = max(1, int(round((min(later) - t) / dt))) if later else 1
                 n = min(n, exit_every - (sys_.step_count % exit_every))
-                if scene is not None:
-                    n = max(1, min(n, scene.max_steps()))
+                n = max(1, min(n, scene.max_steps()))
                 if every_steps:
                     n = min(n, every_steps - (sys_.step_count % every_steps))
                 if max_steps is not None:
@@ -423,10 +421,9 @@ class Simulation:
                 if not st.ok:
                     raise RunError(st.message)
                 self._feed_and_drain()
-                if scene is not None:
-                    t0 = _time.perf_counter()
-                    scene.after_steps()
-                    self.timings["measurements"] += _time.perf_counter() - t0
+                t0 = _time.perf_counter()
+                scene.after_steps()
+                self.timings["measurements"] += _time.perf_counter() - t0
                 if self.measure is not None and sch["measure"].due(sys_.time, dt):
                     t0 = _time.perf_counter()
                     self.measure.measure(sys_.time, sys_.pos, sys_.vel, sys_.radius)
@@ -452,7 +449,7 @@ class Simulation:
                     status, message = "interrupted", f"{name} received: checkpoint written at t = {sys_.time:.6g} s " \
                                                      f"(continue with --resume)"
                     break
-                reason = scene.stop_reason() if scene is not None else None
+                reason = scene.stop_reason()
                 if reason:
                     status, message = "done", reason
                     break
@@ -501,13 +498,12 @@ class Simulation:
             self.inlet.insert(sys_, sys_.time, self.dt)
         if sys_.n:
             pos = sys_.pos
-            if self.case.geometry.type == "chute":
-                out = pos[:, 2] > self.case.exit.z
-                if out.any():
-                    k, m = sys_.remove_particles(out)
-                    c["count_out"] += k
-                    c["mass_out"] += m
-                    pos = sys_.pos
+            out = self.scene.exit_mask(pos)
+            if out is not None and out.any():
+                k, m = sys_.remove_particles(out)
+                c["count_out"] += k
+                c["mass_out"] += m
+                pos = sys_.pos
             self._check_walls_crossed()
             margin = self.case.exit.lost_margin
             lost = np.any((pos < self.box_lo - margin) | (pos > self.box_hi + margin), axis=1)
@@ -587,13 +583,10 @@ class Simulation:
                    mean_velocity_z=float(np.mean(s.vel[:, 2])) if s.n else 0.0)
         if self.gas is not None:
             row.update(self.gas.series_row())
-        if self.scene is not None:
-            row.update({k: float(v) for k, v in self.scene.series().items()})
+        row.update({k: float(v) for k, v in self.scene.series().items()})
         return row
 
     def _write_scene_measurements(self, res) -> None:
-        if self.scene is None:
-            return
         m = self.scene.measurements()
         if m is not None:
             group, arrays, attrs = m
@@ -691,7 +684,10 @@ def check_disk_space(case: Case, out: Path) -> None:
     n_snap = T / o.snapshot_interval
     n_vtk = T / (o.vtk_interval or o.snapshot_interval) if o.vtk else 0
     need = per_snap * n_snap * 0.7 + n * 120 * n_vtk + 3 * memory_estimate(n)
-    free = shutil.disk_usage(out).free
+    probe = out
+    while not probe.exists() and probe != probe.parent:  # the run folder may not exist yet
+        probe = probe.parent
+    free = shutil.disk_usage(probe).free
     if free < need:
         raise CaseError("--out", f"only {free / 2**20:.0f} MiB free on the disk of {out}, the run needs about "
                                  f"{need / 2**20:.0f} MiB (snapshots, VTU frames, checkpoints)")
@@ -717,7 +713,7 @@ def contact_law(params: dict, model: str | None = None):
 
 
 def engine_wall(w, model: str | None = None):
-    """The engine's wall object for a :class:`~cfddem.scene.WallSpec` (``model``: see
+    """The engine's wall object for a :class:`~cfddem.scenes.common.WallSpec` (``model``: see
     :func:`contact_law`)."""
     from .particles.walls import AnnulusWall, CylinderWall, PlaneWall, RectangleWall
 
@@ -769,9 +765,8 @@ def rayleigh_time(case: Case) -> float:
 
 
 def has_particles(case: Case) -> bool:
-    """Whether the case can hold particles at all (an inlet or initial particles)."""
-    return case.inlet.type != "none" or bool(case.particles.initial) or bool(case.particles.initial_file) \
-        or case.geometry.type in ("silo", "shear_cell")
+    """Whether the case can hold particles at all (its scene creates them, or initial particles)."""
+    return bool(case.particles.initial) or bool(case.particles.initial_file) or scene_of(case).has_particles(case)
 
 
 def check_time_step(case: Case, log=None) -> float:
@@ -793,45 +788,14 @@ def check_time_step(case: Case, log=None) -> float:
     return ratio
 
 
-def sluice_inlet(case: Case):
-    """The case's sluice inlet (physics.md §5)."""
-    from .particles.clumps import shape_from_case
-    from .particles.inlets import SluiceInlet
-
-    p, inl = case.particles, case.inlet
-    return SluiceInlet(width=case.geometry.width, height=inl.height, z=inl.z, diameter=p.diameter,
-                       diameter_max=p.diameter_max, seed=p.seed, density=p.density, mass_rate=inl.mass_rate,
-                       start_time=inl.start_time, end_time=inl.end_time, gap=inl.gap, hold_length=inl.hold_length,
-                       shape=shape_from_case(p.clump, p.diameter, p.density))
-
-
 def expected_particles(case: Case) -> int:
-    """Estimate of the particle count: initial particles plus the steady hold-up of a fed chute
-    (feed rate x the time to slide the chute length, accelerating at g (sin theta - mu_w cos
-    theta) from the feed speed), capped by what is fed before the end time."""
-    n = len(case.particles.initial)
-    spheres = {"none": 1, "pellet2": 2, "pellet4": 4}.get(case.particles.clump, 4)  # per site
-    if case.geometry.type == "silo":
-        n += spheres * case.silo.n_particles
-    if case.geometry.type == "shear_cell":  # fill (up to 4 spheres per clump) + lid
-        n += 4 * case.shear.n_particles + 1000
+    """Estimate of the particle count: initial particles plus what the scene creates."""
+    n = len(case.particles.initial) + scene_of(case).expected_particles(case)
     if case.particles.initial_file:
         try:
             n += len(initial_particles(case)["pos"]) - len(case.particles.initial)
         except CaseError:
             pass
-    if case.inlet.type == "sluice":
-        inl = sluice_inlet(case)
-        th = math.radians(case.gravity.inclination_deg)
-        a = case.gravity.g * (math.sin(th) - case.contact.particle_wall.mu * math.cos(th))
-        L = case.exit.z - case.inlet.z
-        v0 = inl.velocity
-        if a > 1e-9:
-            t_res = (-v0 + math.sqrt(v0 * v0 + 2 * a * L)) / a
-        else:
-            t_res = L / v0
-        t_feed = max(0.0, min(case.time.end_time, case.inlet.end_time) - case.inlet.start_time)
-        n += spheres * int(case.inlet.mass_rate * min(t_res, t_feed) / inl.particle_mass)
     return n
 
 
@@ -881,19 +845,20 @@ def describe_case(case: Case) -> list[str]:
     lines.append(f"gravity: ({g[0]:.4g}, {g[1]:.4g}, {g[2]:.4g}) m/s2; frame rotation: "
                  + (f"{case.frame.rpm:g} rpm, Omega = ({om[0]:.4g}, {om[1]:.4g}, {om[2]:.4g}) rad/s about "
                     f"{tuple(case.frame.axis_point)}" if case.frame.rpm else "none (inertial frame, no rotation terms)"))
-    if case.inlet.type == "sluice":
-        inl = sluice_inlet(case)
-        lines.append(f"inlet: {case.inlet.mass_rate:g} kg/s through a bcc sluice of {inl.lattice.per_period} particles "
-                     f"per {inl.lattice.a * 1e3:.3f} mm, feed velocity {inl.velocity:.4g} m/s")
+    lines += scene_of(case).describe(case)
     if particles:
         n = expected_particles(case)
         lines.append(f"expected particles: about {n:,}; memory about {memory_estimate(n) / 2 ** 20:.0f} MiB")
+        v = expected_max_speed(case)
+        if v > 0:
+            lines.append(f"expected speed scale: {v:.3g} m/s (the scene's fastest expected particle or gas speed)")
     steps = int(math.ceil(case.time.end_time / case.time.dt))
     lines.append(f"steps to end time {case.time.end_time:g} s: {steps:,}")
     if case.gas.enabled:
         from .coupling.exchange import coupling_diagnostics
 
-        lines += ["gas: " + x for x in coupling_diagnostics(case)]
+        d = max(case.particles.diameter, case.particles.diameter_max) if particles else None
+        lines += ["gas: " + x for x in coupling_diagnostics(case, scene_of(case).gas_domain(case), d)]
         n_rec = recommended_coupling_interval(case)
         lines.append(f"gas: recommended coupling interval {n_rec} particle steps (gas step {n_rec * case.time.dt:.3g} s: "
                      f"gas CFL <= 0.3 at the fastest expected flow); the case uses {case.gas.coupling_interval}")
@@ -903,33 +868,16 @@ def describe_case(case: Case) -> list[str]:
 
 
 def expected_max_speed(case: Case) -> float:
-    """Speed scale of the flow: a particle sliding the whole chute from the feed velocity,
-    accelerating at g (sin theta - mu_w cos theta), or the lid cross-wind at the chute's far
-    corner, whichever is larger."""
-    th = math.radians(case.gravity.inclination_deg)
-    a = max(0.0, case.gravity.g * (math.sin(th) - case.contact.particle_wall.mu * math.cos(th)))
-    v0 = 0.0
-    if case.inlet.type == "sluice":
-        v0 = sluice_inlet(case).velocity
-    L = case.geometry.length if case.geometry.type == "chute" else 0.0
-    v = math.sqrt(v0 * v0 + 2.0 * a * L)
-    om = frame_omega(case)
-    if np.any(om) and case.geometry.type == "chute":
-        geo = case.geometry
-        ap = np.array(case.frame.axis_point, float)
-        corners = np.array([[x, case.gas.height, z] for x in (0.0, geo.width)
-                            for z in (geo.z_start, geo.z_start + geo.length)])
-        v = max(v, float(np.max(np.linalg.norm(np.cross(om, corners - ap), axis=1))))
-    return v
+    """Speed scale of the flow (the scene's; e.g. the chute: a particle sliding its whole length,
+    or the lid cross-wind at its far corner)."""
+    return scene_of(case).speed_scale(case)
 
 
 def recommended_coupling_interval(case: Case, cfl: float = 0.3) -> int:
     """Largest number of particle steps per gas step keeping the gas CFL number (sum over the
     axes of u dt_g / h) at or below ``cfl`` for the expected flow speed, and the gas step below
     the rotating frame's explicit Coriolis limit 0.05/|Omega|."""
-    nx, ny, nz = case.gas.cells
-    geo = case.geometry
-    h = (geo.width / nx, case.gas.height / ny, geo.length / nz)
+    h = scene_of(case).gas_domain(case).grid.spacing
     u = max(expected_max_speed(case), 1e-9)
     dtg = cfl / sum(u / hh for hh in h)
     om = float(np.linalg.norm(frame_omega(case)))

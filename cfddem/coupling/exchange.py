@@ -92,8 +92,7 @@ from cfddem._jit import kernel, parallel_kernel, prange
 from cfddem.coupling import drag as _drag
 from cfddem.coupling.mapping import MappingPlan
 from cfddem.errors import CaseError
-from cfddem.gas import (FreeSlip, GasSolver, Inlet, LidCrossWind, NoSlip, Periodic, PressureOutlet,
-                        StaggeredGrid)
+from cfddem.gas import GasSolver, Inlet, NoSlip, Periodic, PressureOutlet, StaggeredGrid
 
 __all__ = ["CoupledGas", "CouplingStatus", "build_coupled_gas", "coupling_diagnostics", "column_gas"]
 
@@ -888,80 +887,38 @@ def _diag_lines(grid, d, rho_p, rho, mu, closure, dt, N, gas_stable_dt, treatmen
     return lines
 
 
-# ---------------------------------------------------------------------------- chute case
-def _chute_setup(case):
-    from cfddem.particles.inlets import SluiceInlet
-    from cfddem.scene import frame_omega, gravity_vector
-
-    geo, gcfg = case.geometry, case.gas
-    nx, ny, nz = (int(v) for v in gcfg.cells)
-    z0, z1 = float(geo.z_start), float(case.exit.z)
-    grid = StaggeredGrid((nx, ny, nz), (float(geo.width), float(gcfg.height), z1 - z0), (0.0, 0.0, z0), halo=2)
-    g = np.asarray(gravity_vector(case), float)
-    om = np.asarray(frame_omega(case), float)
-    ap = tuple(float(v) for v in case.frame.axis_point)
-    vin = gcfg.inlet_velocity
-    if vin is None:
-        if case.inlet.type == "sluice":
-            dmax = max(case.particles.diameter, case.particles.diameter_max)
-            vin = SluiceInlet(width=geo.width, height=case.inlet.height, z=case.inlet.z, diameter=dmax,
-                              density=case.particles.density, mass_rate=case.inlet.mass_rate,
-                              gap=case.inlet.gap).velocity
-        else:
-            vin = 0.0
-    lid = {"crosswind": LidCrossWind(omega=tuple(om), axis_point=ap), "slip": FreeSlip(),
-           "wall": NoSlip()}[gcfg.lid]
-    rho = float(gcfg.density)
-    # outlet pressure hydrostatic across the outlet plane (zero for gas at rest)
-    pout = PressureOutlet(p=lambda x, y, z, _g=g, _r=rho: _r * (_g[0] * x + _g[1] * y))
-    bcs = {"x-": NoSlip(), "x+": NoSlip(), "y-": NoSlip(), "y+": lid, "z-": Inlet(speed=float(vin)), "z+": pout}
-    return grid, bcs, g, om, ap, float(vin)
-
-
-def build_coupled_gas(case, system, log=None) -> CoupledGas:
-    """The CoupledGas of a chute case with ``gas.enabled``: domain x in [0, width], y in
-    [0, gas.height], z in [z_start, exit.z], grid ``gas.cells``; no-slip x-, x+, y-; y+ per
-    ``gas.lid``; z- velocity inlet at ``gas.inlet_velocity`` (default the sluice feed velocity);
-    z+ pressure outlet (hydrostatic across the plane).  The gas starts with the inlet velocity
-    everywhere along z (divergence-free, compatible with inlet and outlet)."""
-    grid, bcs, g, om, ap, vin = _chute_setup(case)
+# ---------------------------------------------------------------------------- a scene's gas
+def build_coupled_gas(case, system, domain, log=None) -> CoupledGas:
+    """The CoupledGas of a case with ``gas.enabled`` on the :class:`~cfddem.gas.domain.GasDomain`
+    its scene declares (grid, a boundary condition per face, frame, initial fields), with the
+    gas properties, closure, coupling interval and solver of the case's ``[gas]``."""
     gcfg = case.gas
-    cg = CoupledGas(system, grid, bcs, rho=gcfg.density, mu=gcfg.viscosity, closure=gcfg.drag,
+    cg = CoupledGas(system, domain.grid, domain.bcs, rho=gcfg.density, mu=gcfg.viscosity, closure=gcfg.drag,
                     coupling_interval=gcfg.coupling_interval, drag_treatment=gcfg.drag_treatment,
-                    gravity=tuple(g), omega=tuple(om), axis_point=ap, log=log,
+                    gravity=domain.gravity, omega=domain.omega, axis_point=domain.axis_point, log=log,
                     pressure_solver=gcfg.pressure_solver, tol=gcfg.pressure_tol)
     cg.average_start = float(case.measurements.start_time)
-    cg.gas.set_velocity(lambda x, y, z: (0.0 * x, 0.0 * x, vin + 0.0 * x))
-    cg.gas.set_pressure(lambda x, y, z: gcfg.density * (g[0] * x + g[1] * y + g[2] * (z - grid.origin[2] - grid.lengths[2])))
-    if log is not None:
-        for line in cg.diagnostics()[:-1]:
-            log.info("gas: %s", line)
+    if domain.velocity is not None:
+        cg.gas.set_velocity(domain.velocity)
+    if domain.pressure is not None:
+        cg.gas.set_pressure(domain.pressure)
     return cg
 
 
-def coupling_diagnostics(case) -> list[str]:
-    """The coupling numbers of a chute case without running (for ``cfddem check``)."""
+def coupling_diagnostics(case, domain, d: float | None) -> list[str]:
+    """The coupling numbers of a case on its gas domain without running (for ``cfddem check``);
+    ``d``: the largest particle diameter, None for a case without particles."""
     if not case.gas.enabled:
         return ["gas: off"]
-    from cfddem.simulation import has_particles
-
-    grid, bcs, g, om, ap, vin = _chute_setup(case)
     gcfg = case.gas
-    # no particle numbers (cell/particle size, relaxation times) for a gas-only case
-    d = max(case.particles.diameter, case.particles.diameter_max) if has_particles(case) else None
-    gas = GasSolver(grid, rho=gcfg.density, mu=gcfg.viscosity, bcs=bcs, gravity=tuple(g), omega=tuple(om),
-                    axis_point=ap)
-    gas.set_velocity(lambda x, y, z: (0.0 * x, 0.0 * x, vin + 0.0 * x))
-    # velocity scale: the inlet, and the lid cross-wind at the far corner of the domain
-    corners = np.array([[x, grid.lengths[1], z] for x in (0.0, grid.lengths[0])
-                        for z in (grid.origin[2], grid.origin[2] + grid.lengths[2])])
-    wind = float(np.max(np.linalg.norm(np.cross(om, corners - np.asarray(ap)), axis=1))) if np.any(om) else 0.0
-    u_scale = max(vin, wind, 1e-12)
-    lines = _diag_lines(grid, d, case.particles.density, gcfg.density, gcfg.viscosity, gcfg.drag,
-                        case.time.dt, gcfg.coupling_interval, gas.stable_dt_limits(), gcfg.drag_treatment, u_scale)
-    lines.append(f"gas inlet velocity {vin:.4g} m/s; lid: {gcfg.lid} (max cross-wind {wind:.3g} m/s); "
-                 f"min porosity: computed at run time (cells below 0.3 are logged)")
-    return lines
+    gas = GasSolver(domain.grid, rho=gcfg.density, mu=gcfg.viscosity, bcs=domain.bcs, gravity=domain.gravity,
+                    omega=domain.omega, axis_point=domain.axis_point)
+    if domain.velocity is not None:
+        gas.set_velocity(domain.velocity)
+    lines = _diag_lines(domain.grid, d, case.particles.density, gcfg.density, gcfg.viscosity, gcfg.drag,
+                        case.time.dt, gcfg.coupling_interval, gas.stable_dt_limits(), gcfg.drag_treatment,
+                        domain.speed_scale)
+    return lines + list(domain.notes)
 
 
 # ---------------------------------------------------------------------------- test helper

@@ -542,6 +542,11 @@ def pellet(n: int, diameter: float, density: float) -> ClumpShape:
 CLUMP_SHAPES = ("none", "pellet2", "pellet4")
 
 
+def spheres_per_body(name: str) -> int:
+    """Spheres per inserted body of the clump shape ``name`` (1 for plain spheres)."""
+    return {"none": 1, "pellet2": 2, "pellet4": 4}.get(name, 4)
+
+
 def shape_from_case(name: str, diameter: float, density: float) -> ClumpShape | None:
     if name == "none":
         return None

@@ -69,8 +69,43 @@ import numpy as np
 from ..errors import CaseError, RunError
 from ..measure.shear import bulk_friction, inertial_number, lid_disc
 from . import Scene
+from ..schema import Key, wall_override
+from ..schema import nonneg as _nonneg
+from ..schema import number as _f
+from ..schema import positive as _pos
 
 PHASES = ("fill", "consolidate", "shear", "done")
+
+
+SHEAR_KEYS = {
+    "variant": Key("str", "bulk", "-", "'bulk': base ring + shear ring (bulk friction); 'wall': the base ring "
+                   "replaced by a flat plate at the shear plane (wall friction)", choices=("bulk", "wall")),
+    "cell_diameter": _pos(0.095, "m", "inner diameter D of both rings (axis = y through x = z = 0)"),
+    "base_height": _pos(0.013, "m", "height of the base ring (y from 0; the shear plane is its top)"),
+    "ring_height": _pos(0.016, "m", "height of the shear ring above the base ring"),
+    "ring_offset": _nonneg(0.003, "m", "initial offset of the shear ring against the shear direction (-x)"),
+    "wall_thickness": _pos(0.003, "m", "ring wall thickness: the width of the ledges (ring faces) at the shear plane"),
+    "normal_stress": _pos(4000.0, "Pa", "consolidation stress sigma on the lid: load sigma pi D^2 / 4"),
+    "load_ramp_time": _nonneg(0.05, "s", "the lid load ramps linearly from 0 over this time"),
+    "shear_speed": _pos(0.003, "m/s", "speed of the shear ring and lid"),
+    "shear_distance": _pos(0.006, "m", "travel of the shear ring (the run stops there)"),
+    "n_particles": Key("int", 3000, "-", "particles (or clumps) of the fill lattice (overfilled, then scraped)", lo=1),
+    "lattice_gap": _f(0.1, "-", "fill lattice spacing d (1 + gap)", lo=0.0, lo_open=True, hi=2.0),
+    "lattice_jitter": _f(0.05, "-", "random displacement of the sites, up to +-jitter d / 2 per axis", lo=0.0, hi=2.0),
+    "fill_time": _nonneg(0.2, "s", "earliest end of the fill (settled check)"),
+    "settle_energy": _pos(1e-8, "J", "kinetic energy per particle below which the fill counts as settled"),
+    "consolidate_time": _nonneg(0.05, "s", "shortest consolidation after the lid is placed"),
+    "lid_settle_speed": _pos(2e-3, "m/s", "consolidation ends when the lid's vertical speed is below this"),
+    "lid_sphere_diameter": _nonneg(0.0, "m", "diameter of the lid's glued spheres (0: particles.diameter)"),
+    "lid_clearance": _nonneg(0.0005, "m", "gap between the lid's outline and the ring"),
+    "lid_density": _pos(7800.0, "kg/m3", "density of the lid's spheres (its weight is cancelled; sets its inertia)"),
+    "check_steps": Key("int", 20, "-", "steps between the scene's checks (load update, force sampling)", lo=1),
+    "sample_interval": _pos(0.01, "s", "interval of the averaged shear samples (/measurements/shear)"),
+    "steady_window": Key("floats", [0.5, 1.0], "-", "bulk friction: mean over shear displacements between these "
+                         "fractions of shear_distance", length=2),
+    "rings": wall_override("base ring, bottom and shear ring"),
+    "plate": wall_override("wall-friction plate (variant 'wall')"),
+}
 
 
 def check_shear_case(r: dict) -> None:
@@ -127,7 +162,7 @@ class ShearGeometry:
 
 def shear_walls(case):
     """The shear cell's :class:`~cfddem.scene.WallSpec` list (complete contact parameters)."""
-    from ..scene import WallSpec
+    from .common import WallSpec
 
     s = case.resolved["shear"]
     g = ShearGeometry(s, case.particles.diameter)
@@ -175,6 +210,30 @@ def fill_sites(g: ShearGeometry, n: int, spacing: float, gap: float, jitter: flo
 
 class ShearCellScene(Scene):
     """Fill, lid, consolidation, shear, measurements of a Jenike shear test (module doc)."""
+
+    DOC = "'shear_cell': the Jenike shear cell of [shear]"
+    EXAMPLE = "shear_jenike"
+    SCHEMA = {"shear": SHEAR_KEYS}
+
+    @classmethod
+    def check(cls, r: dict, case_dir) -> None:
+        check_shear_case(r)
+
+    @classmethod
+    def wall_specs(cls, case) -> list:
+        return shear_walls(case)
+
+    @classmethod
+    def has_particles(cls, case) -> bool:
+        return True
+
+    @classmethod
+    def expected_particles(cls, case) -> int:
+        return 4 * case.shear.n_particles + 1000  # the fill (up to 4 spheres per clump) and the lid
+
+    @classmethod
+    def inserts_clumps(cls, r: dict) -> bool:
+        return True
 
     def __init__(self, sim):
         super().__init__(sim)
@@ -254,9 +313,6 @@ class ShearCellScene(Scene):
         return float(np.sum(sys_.mass[sel])) * float(np.linalg.norm(sys_.gravity))
 
     # ------------------------------------------------------------------ hooks
-    def wall_specs(self):
-        return shear_walls(self.case)
-
     def start(self) -> None:
         from ..particles.clumps import shape_from_case
 

@@ -67,6 +67,10 @@ import numpy as np
 from ..errors import CaseError
 from ..measure.silo import VelocityField, bulk_density, channel_boundary, fit_mass_flow, surface_height
 from . import Scene
+from ..schema import Key, wall_override
+from ..schema import nonneg as _nonneg
+from ..schema import number as _f
+from ..schema import positive as _pos
 
 WALL_GROUPS = {"front": "front_back", "back": "front_back", "left": "sides", "right": "sides",
                "bottom_left": "bottom", "bottom_right": "bottom", "hopper_left": "bottom",
@@ -162,8 +166,52 @@ def fill_lattice(W: float, L: float, y0: float, d: float, n: int, gap: float, ji
     return pos
 
 
+SILO_KEYS = {
+    "width": _pos(0.15, "m", "inner width of the planar silo (x from 0 to width; y up, the outlet plane at y = 0)"),
+    "depth": _pos(0.04, "m", "distance between the front (z = 0) and back (z = depth) walls"),
+    "height": _nonneg(0.0, "m", "height of the side walls above the outlet plane (0: the top of the fill lattice + 2 d)"),
+    "outlet_width": _pos(0.04, "m", "width b of the slot outlet (full depth), centred at x = width/2"),
+    "hopper_angle_deg": _f(0.0, "deg", "hopper wall inclination measured from the HORIZONTAL (0: flat bottom; "
+                           "60: walls at 60 deg to the horizontal, 30 deg from the vertical)", lo=0.0, hi=80.0),
+    "lip": _nonneg(0.0, "m", "thickness of the bottom plate: vertical lip walls line the slot from y = -lip to 0 and "
+                   "the gate closes it at y = -lip (0: one particle diameter)"),
+    "removal_depth": _nonneg(0.0, "m", "particles whose centre falls below y = -removal_depth are removed as "
+                             "discharged (0: lip + 1.5 d)"),
+    "n_particles": Key("int", 2000, "-", "particles of the fill lattice", lo=1),
+    "fill": Key("str", "lattice", "-", "'lattice': n_particles on a loose jittered lattice above the bottom, dropped "
+                "and settled; 'pour': jittered lattice layers inserted at pour_height at the mass rate pour_rate "
+                "until n_particles are in", choices=("lattice", "pour")),
+    "pour_rate": _pos(0.5, "kg/s", "pour: mass rate of the pour (one lattice layer every layer mass / rate; a layer "
+                      "that would overlap waits)"),
+    "pour_height": _nonneg(0.0, "m", "pour: height of the inserted layers (0: the top of the lattice fill of the same "
+                           "n_particles)"),
+    "lattice_gap": _f(0.12, "-", "fill lattice spacing d (1 + lattice_gap)", lo=0.0, lo_open=True, hi=2.0),
+    "lattice_jitter": _f(0.08, "-", "random displacement of each lattice site, up to +-jitter d / 2 per axis "
+                         "(seeded by particles.seed; must be below lattice_gap)", lo=0.0, hi=2.0),
+    "gate": Key("str", "settled", "-", "'time': the gate opens at gate_time; 'settled': at the first check at or "
+                "after gate_time where the kinetic energy per particle is below settle_energy",
+                choices=("time", "settled")),
+    "gate_time": _nonneg(0.3, "s", "gate opening time ('time') or earliest opening time ('settled')"),
+    "settle_energy": _pos(2e-9, "J", "kinetic energy per particle below which the fill counts as settled"),
+    "settle_check_interval": _pos(0.01, "s", "interval of the settled / clogged / empty checks"),
+    "clog_time": _pos(0.5, "s", "no outflow for this long while particles remain just above the slot: clogged "
+                      "(the run stops); with none there: discharge ended (empty)"),
+    "fit_range": Key("floats", [0.2, 0.8], "-", "mass flow rate: linear fit of discharged mass against time between "
+                     "these fractions of the final discharged mass", length=2),
+    "field_cell": _nonneg(0.0, "m", "cell size of the time-averaged x-y velocity field (0: 2 d)"),
+    "field_interval": _pos(0.01, "s", "sampling interval of the velocity field during discharge"),
+    "field_start": _nonneg(0.1, "s", "velocity field: start averaging this long after the gate opened"),
+    "channel_fraction": _f(0.1, "-", "flow-channel boundary: where the downward speed falls below this fraction "
+                           "of the centreline speed", lo=0.0, lo_open=True, hi=1.0, hi_open=True),
+    "front_back": wall_override("front and back walls"),
+    "sides": wall_override("side walls"),
+    "bottom": wall_override("bottom plates or hopper walls, and the slot lips"),
+    "gate_wall": wall_override("gate"),
+}
+
+
 def check_silo_case(r: dict) -> None:
-    """Consistency of a silo case (called by :func:`cfddem.config._check_consistency`)."""
+    """Consistency of a silo case (:meth:`SiloScene.check`)."""
     s = r["silo"]
     d = max(r["particles"]["diameter"], r["particles"]["diameter_max"])
     if r["particles"]["diameter_max"]:
@@ -211,9 +259,9 @@ def check_silo_case(r: dict) -> None:
 
 
 def silo_walls(case):
-    """The silo's :class:`~cfddem.scene.WallSpec` list (params: the per-group overrides only;
-    :func:`cfddem.scene.wall_specs` fills in ``contact.particle_wall``)."""
-    from ..scene import WallSpec
+    """The silo's :class:`~cfddem.scenes.common.WallSpec` list (params: the per-group overrides
+    only; :func:`cfddem.scenes.common.wall_specs` fills in ``contact.particle_wall``)."""
+    from .common import WallSpec
 
     s = case.resolved["silo"]
     g = SiloGeometry(s, case.particles.diameter, case.particles.seed, case.particles.clump, case.particles.density)
@@ -261,6 +309,32 @@ def silo_walls(case):
 
 class SiloScene(Scene):
     """Fill, gate, discharge, measurements and the stop condition of a silo run (module doc)."""
+
+    DOC = "'silo': the planar silo of [silo]"
+    EXAMPLE = "silo_flat"
+    SCHEMA = {"silo": SILO_KEYS}
+
+    @classmethod
+    def check(cls, r: dict, case_dir) -> None:
+        check_silo_case(r)
+
+    @classmethod
+    def wall_specs(cls, case) -> list:
+        return silo_walls(case)
+
+    @classmethod
+    def has_particles(cls, case) -> bool:
+        return True
+
+    @classmethod
+    def expected_particles(cls, case) -> int:
+        from ..particles.clumps import spheres_per_body
+
+        return spheres_per_body(case.particles.clump) * case.silo.n_particles
+
+    @classmethod
+    def inserts_clumps(cls, r: dict) -> bool:
+        return True
 
     def __init__(self, sim):
         super().__init__(sim)

@@ -10,7 +10,7 @@ import pytest
 
 from cfddem.config import build_case, load_case
 from cfddem.errors import CaseError
-from cfddem.scene import initial_particles
+from cfddem.scenes.common import initial_particles
 from cfddem.simulation import check_disk_space, prepare_out_dir
 
 from ..conftest import CASES

@@ -7,6 +7,7 @@ from cfddem.coupling.exchange import build_coupled_gas
 from cfddem.errors import CaseError
 from cfddem.gas.multigrid import MGPressureSolver
 from cfddem.gas.pressure import PressureSolver
+from cfddem.scenes import scene_of
 
 
 @pytest.mark.parametrize("key,cls", [(None, MGPressureSolver), ("mg", MGPressureSolver), ("amg", PressureSolver)])
@@ -20,7 +21,7 @@ def test_pressure_solver_key_reaches_solver(root, key, cls):
     case = load_case(root / "cases" / "chute_16rpm", overrides=ov)
     assert case.gas.pressure_solver == (key or "mg")
     sys_ = ParticleSystem(pp=contact_law(case.resolved["contact"]["particle_particle"]), walls=[], dt=1e-5)
-    cg = build_coupled_gas(case, sys_)
+    cg = build_coupled_gas(case, sys_, scene_of(case).gas_domain(case))
     assert cg.gas.pressure_solver == (key or "mg")
     assert type(cg.gas.psolver) is cls
     info = cg.advance(20)
@@ -42,7 +43,7 @@ def test_pressure_tol_key_reaches_solver(root, tol):
     ov = ["gas.enabled=true", "gas.cells=[4, 3, 10]"] + ([] if tol is None else [f"gas.pressure_tol={tol}"])
     case = load_case(root / "cases" / "chute_16rpm", overrides=ov)
     sys_ = ParticleSystem(pp=contact_law(case.resolved["contact"]["particle_particle"]), walls=[], dt=1e-5)
-    cg = build_coupled_gas(case, sys_)
+    cg = build_coupled_gas(case, sys_, scene_of(case).gas_domain(case))
     assert cg.gas.psolver.tol == (tol or 1e-8)
     assert cg.advance(20).ok
     info = cg.gas.last_info

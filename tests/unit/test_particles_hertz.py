@@ -226,14 +226,17 @@ def _hm_case(**extra):
            "particles": {"initial": [{"pos": [0.025, 0.025, 0.025]}]},
            "time": {"dt": 2e-6}}
     for k, v in extra.items():
-        raw.setdefault(k, {}).update(v)
+        if k == "geometry":  # another scene: its own geometry keys only
+            raw[k] = dict(v)
+        else:
+            raw.setdefault(k, {}).update(v)
     return build_case(raw)
 
 
 def test_case_hertz_mindlin_laws_and_check_numbers():
     from cfddem.simulation import (check_time_step, collision_time, contact_law, describe_case,
                                    engine_wall, rayleigh_time)
-    from cfddem.scene import wall_specs
+    from cfddem.scenes.common import wall_specs
 
     case = _hm_case()
     pp = contact_law(case.resolved["contact"]["particle_particle"], case.contact.model)
@@ -275,7 +278,7 @@ def test_case_hm_key_validation_and_hints():
 
 def test_case_cylinder_wall_entry():
     from cfddem.particles import CylinderWall
-    from cfddem.scene import wall_specs, walls_bounding_box
+    from cfddem.scenes.common import wall_specs, walls_bounding_box
     from cfddem.simulation import engine_wall
 
     cyl = {"type": "cylinder", "name": "ring", "point": [0.0, 0.0, 0.0], "axis": [0, 0, 1], "radius": 0.05,

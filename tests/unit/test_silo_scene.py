@@ -8,7 +8,7 @@ import pytest
 
 from cfddem.config import build_case
 from cfddem.errors import CaseError
-from cfddem.scene import wall_specs
+from cfddem.scenes.common import wall_specs
 from cfddem.scenes.silo import SiloGeometry, fill_lattice
 
 BASE = {

@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 
 from cfddem.config import load_case
-from cfddem.coupling.exchange import build_coupled_gas, coupling_diagnostics
+from cfddem.coupling.exchange import build_coupled_gas
+from cfddem.scenes import scene_of
+from cfddem.simulation import describe_case
 from cfddem.simulation import Simulation
 
 
@@ -49,6 +51,11 @@ def test_chute_runs_coupled(root, tmp_path, cells):
         assert f["measurements/gas/mean_velocity"].shape == cells + (3,)
 
 
+def coupling_diagnostics(case):
+    """The gas lines of ``cfddem check`` (without their "gas: " prefix)."""
+    return [x[5:] for x in describe_case(case) if x.startswith("gas: ")]
+
+
 def test_chute_coupling_diagnostics(root):
     case = load_case(root / "cases" / "chute_16rpm", overrides=["gas.enabled=true"])
     lines = coupling_diagnostics(case)
@@ -59,7 +66,7 @@ def test_chute_coupling_diagnostics(root):
     fine = load_case(root / "cases" / "chute_16rpm", overrides=["gas.enabled=true", "gas.cells=[16, 15, 150]"])
     assert "= 6.37" in "\n".join(coupling_diagnostics(fine))  # the reference study's 5 x 3 x 6 mm cells: 6.4
     off = load_case(root / "cases" / "chute_16rpm", overrides=["gas.enabled=false"])
-    assert coupling_diagnostics(off) == ["gas: off"]
+    assert coupling_diagnostics(off) == ["off (no gas solver is built)"]
 
 
 def test_build_coupled_gas_inlet_default_and_lid(root):
@@ -71,7 +78,7 @@ def test_build_coupled_gas_inlet_default_and_lid(root):
                          overrides=["gas.enabled=true", f"gas.lid='{lid}'", "gas.inlet_velocity=0.7",
                                     "gas.cells=[4, 3, 10]"])
         sys_ = ParticleSystem(pp=contact_law(case.resolved["contact"]["particle_particle"]), walls=[], dt=1e-5)
-        cg = build_coupled_gas(case, sys_)
+        cg = build_coupled_gas(case, sys_, scene_of(case).gas_domain(case))
         assert cg.gas.bc.kinds["y+"] == kind
         np.testing.assert_allclose(cg.gas.bc.boundary_velocity("z-", 2)[2:-2, 2:-2], 0.7)
         assert cg.advance(20).ok

@@ -1,6 +1,6 @@
-"""From a validated case to the physical scene: gravity, frame rotation, walls, contact laws,
-initial particles.  Pure set-up code shared by the :class:`~cfddem.simulation.Simulation` and
-``cfddem check``.
+"""What every scene shares: gravity, frame rotation, the wall description (:class:`WallSpec`),
+the extra ``[[geometry.walls]]``, the bounding box and the initial particles.  Pure set-up code
+used by the :class:`~cfddem.simulation.Simulation`, ``cfddem check`` and the scene modules.
 """
 
 from __future__ import annotations
@@ -10,17 +10,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .config import Case
-from .errors import CaseError
+from ..errors import CaseError
 
 
-def gravity_vector(case: Case) -> np.ndarray:
+def gravity_vector(case) -> np.ndarray:
     """g (0, -cos theta, sin theta): chute axes x across, y normal to the floor, z downstream."""
     th = math.radians(case.gravity.inclination_deg)
     return case.gravity.g * np.array([0.0, -math.cos(th), math.sin(th)])
 
 
-def frame_omega(case: Case) -> np.ndarray:
+def frame_omega(case) -> np.ndarray:
     """Frame angular velocity: rpm * 2 pi / 60 about the vertical (against gravity)."""
     rpm = case.frame.rpm
     if rpm == 0.0:
@@ -81,38 +80,14 @@ class WallSpec:
         return np.array([c - a * u - b * v, c + a * u - b * v, c + a * u + b * v, c - a * u + b * v])
 
 
-def wall_specs(case: Case) -> list[WallSpec]:
+def wall_specs(case) -> list[WallSpec]:
+    """Every wall of a case: its scene's walls, then the extra ``[[geometry.walls]]``; each with
+    its complete contact parameters (``contact.particle_wall`` under its own overrides)."""
+    from . import scene_of
+
     geo = case.geometry
     pw = case.resolved["contact"]["particle_wall"]
-    walls: list[WallSpec] = []
-    if geo.type == "chute":
-        W, H, L, z0 = geo.width, geo.depth, geo.length, geo.z_start
-        zc = z0 + 0.5 * L
-        walls.append(WallSpec("floor", "rectangle", np.array([0.5 * W, 0.0, zc]), np.array([0.0, 1.0, 0.0]),
-                              np.array([1.0, 0.0, 0.0]), (0.5 * W, 0.5 * L)))
-        walls.append(WallSpec("left", "rectangle", np.array([0.0, 0.5 * H, zc]), np.array([1.0, 0.0, 0.0]),
-                              np.array([0.0, 1.0, 0.0]), (0.5 * H, 0.5 * L)))
-        walls.append(WallSpec("right", "rectangle", np.array([W, 0.5 * H, zc]), np.array([-1.0, 0.0, 0.0]),
-                              np.array([0.0, 1.0, 0.0]), (0.5 * H, 0.5 * L)))
-        if geo.back_wall:
-            walls.append(WallSpec("back", "rectangle", np.array([0.5 * W, 0.5 * H, z0]), np.array([0.0, 0.0, 1.0]),
-                                  np.array([1.0, 0.0, 0.0]), (0.5 * W, 0.5 * H)))
-    elif geo.type == "box":
-        lo, hi = np.array(geo.lo), np.array(geo.hi)
-        names = ("x", "y", "z")
-        for ax in range(3):
-            if geo.periodic[ax]:
-                continue
-            for side, pt in (("-", lo), ("+", hi)):
-                n = np.zeros(3)
-                n[ax] = 1.0 if side == "-" else -1.0
-                p = 0.5 * (lo + hi)
-                p[ax] = pt[ax]
-                walls.append(WallSpec(f"{names[ax]}{side}", "plane", p, n))
-    elif geo.type == "silo":
-        from .scenes.silo import silo_walls
-
-        walls.extend(silo_walls(case))
+    walls: list[WallSpec] = list(scene_of(case).wall_specs(case))
     for i, w in enumerate(geo.walls):
         params = {k: float(w[k]) for k in ("k_n", "e_n", "e_t", "mu", "mu_r", "E", "nu", "e") if k in w}
         if w["type"] == "cylinder":
@@ -138,22 +113,22 @@ def wall_specs(case: Case) -> list[WallSpec]:
     return walls
 
 
-def walls_bounding_box(walls: list[WallSpec], case: Case) -> tuple[np.ndarray, np.ndarray]:
+def walls_bounding_box(walls: list[WallSpec], case) -> tuple[np.ndarray, np.ndarray]:
     """Bounding box of the scene (for lost-particle detection): rectangles' corners, cylinders'
-    boxes, box limits."""
+    boxes and the scene's own bounds."""
+    from . import scene_of
+
     pts = [w.corners() for w in walls if w.kind == "rectangle"] + [w.box() for w in walls if w.kind == "cylinder"]
-    geo = case.geometry
-    if geo.type == "box":
-        pts.append(np.array([geo.lo, geo.hi], float))
-    if geo.type == "chute":
-        pts.append(np.array([[0, 0, geo.z_start], [geo.width, geo.depth, geo.z_start + geo.length]], float))
+    extra = scene_of(case).bounds(case)
+    if extra is not None:
+        pts.append(np.asarray(extra, float))
     if not pts:
         return np.full(3, -np.inf), np.full(3, np.inf)
     allp = np.concatenate(pts)
     return allp.min(axis=0), allp.max(axis=0)
 
 
-def initial_particles(case: Case) -> dict[str, np.ndarray]:
+def initial_particles(case) -> dict[str, np.ndarray]:
     """Initial particles from [[particles.initial]] and/or particles.initial_file."""
     d = case.particles.diameter
     pos, vel, om, rad = [], [], [], []

@@ -1,0 +1,65 @@
+"""The building blocks of the case schema: :class:`Key` (one case-file key: type, default, unit,
+meaning, allowed range) and its short constructors.
+
+:mod:`cfddem.config` assembles the schema from its own sections and from the sections each
+registered scene (:mod:`cfddem.scenes`) and contact law contributes; this module imports
+nothing of cfddem, so that scene modules can declare their keys without importing the
+configuration loader.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+INF = float("inf")
+
+
+@dataclass(frozen=True)
+class Key:
+    """One case-file key: its type, default, unit, meaning and allowed range."""
+
+    type: str  # float | int | bool | str | vec3 | floats | ints | bools3 | tables
+    default: Any
+    unit: str
+    doc: str
+    lo: float | None = None  # lower bound (of the value, or of every entry of a list)
+    hi: float | None = None  # upper bound
+    lo_open: bool = False  # lower bound excluded
+    hi_open: bool = False
+    choices: tuple[str, ...] | None = None
+    required: bool = False
+    length: int | None = None  # floats / ints: the exact number of entries (None: any, at least one)
+
+    def describe_range(self) -> str:
+        if self.choices:
+            return "one of " + ", ".join(repr(c) for c in self.choices)
+        n = f"{self.length} entries" if self.length else ""
+        if self.lo is None and self.hi is None:
+            return n
+        lo = "-inf" if self.lo is None else f"{self.lo:g}"
+        hi = "inf" if self.hi is None else f"{self.hi:g}"
+        lb = "(" if (self.lo_open or self.lo is None) else "["
+        hb = ")" if (self.hi_open or self.hi is None) else "]"
+        return f"{lb}{lo}, {hi}{hb}" + (f", {n}" if n else "")
+
+
+def number(default, unit, doc, **kw) -> Key:
+    return Key("float", default, unit, doc, **kw)
+
+
+def positive(default, unit, doc, **kw) -> Key:
+    return Key("float", default, unit, doc, lo=0.0, lo_open=True, **kw)
+
+
+def nonneg(default, unit, doc, **kw) -> Key:
+    return Key("float", default, unit, doc, lo=0.0, **kw)
+
+
+def wall_override(what: str) -> dict:
+    """Per-wall-group contact overrides of a scene (unset: contact.particle_wall)."""
+    return {k: Key("float", None, u, f"{what}: {doc} (default: contact.particle_wall.{k})", lo=0.0)
+            for k, u, doc in (("mu", "-", "sliding friction"), ("mu_r", "-", "rolling friction"),
+                              ("e_n", "-", "normal restitution"), ("e_t", "-", "tangential restitution"),
+                              ("k_n", "N/m", "normal stiffness"), ("E", "Pa", "Young's modulus (hertz_mindlin)"),
+                              ("nu", "-", "Poisson ratio (hertz_mindlin)"), ("e", "-", "restitution (hertz_mindlin)"))}
