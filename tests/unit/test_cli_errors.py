@@ -113,3 +113,29 @@ def test_initial_particles_from_hdf5_and_csv(tmp_path):
     with pytest.raises(CaseError) as e:
         initial_particles(build_case(dict(raw, particles={"initial_file": "neg.csv"}), case_dir=tmp_path))
     assert "radius must be positive" in str(e.value)
+
+
+@pytest.mark.parametrize("key,value,words", [
+    ("gas.cells", "[16,8]", "array of 3 integers, got 2"),
+    ("measurements.sensors_x", "[0.01,0.02]", "array of 3 numbers, got 2"),
+    ("gas.cells", "[]", "array of 3 integers, got 0"),
+    ("geometry.lo", "[0,0]", "array of 3 numbers"),
+    ("measurements.stations", "[]", "got an empty array"),
+])
+def test_list_keys_checked_before_any_folder(tmp_path, key, value, words):
+    """A list of the wrong length or shape: exit 2, one line naming the key, no run folder; the
+    corrected run then starts in that folder."""
+    out = tmp_path / "X"
+    one_line_error(["run", str(CASES / "chute_16rpm"), "--set", f"{key}={value}", "--out", str(out)], key)
+    code, err, _ = run_cli("run", str(CASES / "chute_16rpm"), "--set", f"{key}={value}", "--out", str(out))
+    assert words in err[0] and not out.exists()
+
+
+def test_case_refused_at_build_writes_nothing(tmp_path):
+    """Problems found only when the run is built (overlapping initial particles) leave no folder."""
+    out = tmp_path / "X"
+    one_line_error(["run", str(CASES / "box_small"), "--out", str(out), "--set",
+                    "particles.initial=[{pos=[0.01,0.01,0.01]},{pos=[0.01,0.01,0.0101]}]"], "overlap")
+    assert not out.exists()
+    code, err, _ = run_cli("run", str(CASES / "box_small"), "--out", str(out))
+    assert code == 0 and (out / "results.h5").exists(), err
