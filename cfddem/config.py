@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from .coupling.drag import CLOSURES, DEFAULT_CLOSURE
 from .errors import CaseError
 from .scenes import DEFAULT_SCENE, SCENE_TYPES, scene_class, scene_docs, scene_schemas
 from .schema import Key
@@ -141,8 +142,8 @@ SCHEMA: dict[str, dict] = {
         "drag_treatment": Key("str", "implicit", "-", "'implicit': drag implicit in the gas step and bounded "
                               "(exact exponential relaxation) for the particles, stable for any particle relaxation "
                               "time; 'explicit': forward Euler, for comparison", choices=("implicit", "explicit")),
-        "drag": Key("str", "beetstra", "-", "drag closure",
-                    choices=("beetstra", "wen_yu", "ergun_gidaspow", "di_felice", "koch_hill")),
+        "drag": Key("str", DEFAULT_CLOSURE, "-", "drag closure (cfddem/coupling/drag.py, docs/coupling.md)",
+                    choices=tuple(CLOSURES)),
         "pressure_solver": Key("str", "mg", "-", "pressure solver: 'mg' (compiled geometric multigrid as CG "
                                "preconditioner) or 'amg' (pyamg smoothed aggregation, for comparison)",
                                choices=("mg", "amg")),
