@@ -104,8 +104,14 @@ SCHEMA: dict[str, dict] = {
         "clump": Key("str", "none", "-", "particle shape: 'none' (spheres) or a rigid clump of spheres of this "
                      "diameter: 'pellet2' (two spheres d/2 apart), 'pellet4' (tetrahedron of edge d/2); clumps are "
                      "inserted by the shear_cell and silo fills and the sluice inlet, one per lattice "
-                     "site in a random orientation; initial particles stay spheres (docs/particles.md)",
-                     choices=("none", "pellet2", "pellet4")),
+                     "site in a random orientation; 'template': the spheres of particles.clump_spheres; initial "
+                     "particles stay spheres (docs/particles.md)",
+                     choices=("none", "pellet2", "pellet4", "template")),
+        "clump_spheres": Key("rows", [], "d", "clump template (particles.clump = 'template'): one row [x, y, z, r] per "
+                             "sphere, centre and radius in units of particles.diameter, e.g. the thesis's 2-sphere "
+                             "clump of 3 mm spheres 0.75 mm apart: [[-0.125, 0, 0, 0.5], [0.125, 0, 0, 0.5]] with "
+                             "diameter = 0.003; the spheres must overlap or touch (one rigid body); mass and inertia "
+                             "of their union", length=4),
     },
     "contact": {
         "model": Key("str", "linear", "-", "contact law: 'linear' spring-dashpot (keys k_n, e_n, e_t, mu, mu_r) or "
@@ -411,6 +417,13 @@ def _check_value(key: str, spec: Key, v: Any) -> Any:
         if any(x < 1 for x in v):
             raise CaseError(key, f"every entry must be >= 1, got {v!r}")
         return list(v)
+    if t == "rows":
+        if not isinstance(v, list) or not all(isinstance(x, list) for x in v):
+            raise CaseError(key, f"expected an array of rows (arrays of {spec.length} numbers), got {v!r}")
+        for i, row in enumerate(v):
+            if spec.length is not None and len(row) != spec.length:
+                raise CaseError(f"{key}[{i}]", f"expected {spec.length} numbers, got {len(row)}: {row!r}")
+        return [[_as_float(f"{key}[{i}][{j}]", x) for j, x in enumerate(row)] for i, row in enumerate(v)]
     if t == "tables":
         if not isinstance(v, list) or not all(isinstance(x, dict) for x in v):
             raise CaseError(key, "expected an array of tables ([[...]] entries)")
@@ -528,6 +541,13 @@ def _check_consistency(r: dict, case_dir: Path) -> None:
     if p["clump"] != "none" and not scene.inserts_clumps(r):
         raise CaseError("particles.clump", "clumps are inserted by a scene's fill or inlet only (initial particles "
                                            f"are spheres): geometry.type = '{geo['type']}' with these settings has none")
+    if p["clump"] == "template":
+        from .particles.clumps import check_template
+
+        check_template(p["clump_spheres"])
+    elif p["clump_spheres"]:
+        raise CaseError("particles.clump_spheres", f"a clump template needs particles.clump = 'template' "
+                                                   f"(this case has {p['clump']!r})")
     if p["clump"] != "none" and p["diameter_max"] > 0:
         raise CaseError("particles.diameter_max", "pellets (particles.clump) are monodisperse: leave it 0")
     if r["gas"]["enabled"] and not scene.HAS_GAS:

@@ -19,7 +19,7 @@ INF = float("inf")
 class Key:
     """One case-file key: its type, default, unit, meaning and allowed range."""
 
-    type: str  # float | int | bool | str | vec3 | floats | ints | bools3 | tables
+    type: str  # float | int | bool | str | vec3 | floats | ints | bools3 | rows | tables
     default: Any
     unit: str
     doc: str
@@ -29,12 +29,12 @@ class Key:
     hi_open: bool = False
     choices: tuple[str, ...] | None = None
     required: bool = False
-    length: int | None = None  # floats / ints: the exact number of entries (None: any, at least one)
+    length: int | None = None  # floats / ints: the number of entries (None: any, at least one); rows: per row
 
     def describe_range(self) -> str:
         if self.choices:
             return "one of " + ", ".join(repr(c) for c in self.choices)
-        n = f"{self.length} entries" if self.length else ""
+        n = (f"{self.length} entries" + (" per row" if self.type == "rows" else "")) if self.length else ""
         if self.lo is None and self.hi is None:
             return n
         lo = "-inf" if self.lo is None else f"{self.lo:g}"

@@ -539,22 +539,75 @@ def pellet(n: int, diameter: float, density: float) -> ClumpShape:
     return ClumpShape.from_spheres(c, r, density, name=f"pellet{n}")
 
 
-CLUMP_SHAPES = ("none", "pellet2", "pellet4")
+CLUMP_SHAPES = ("none", "pellet2", "pellet4", "template")
 
 
-def spheres_per_body(name: str) -> int:
-    """Spheres per inserted body of the clump shape ``name`` (1 for plain spheres)."""
+def spheres_per_body(name: str, spheres=()) -> int:
+    """Spheres per inserted body of the clump shape ``name`` (1 for plain spheres; a template:
+    its rows)."""
+    if name == "template":
+        return max(1, len(spheres))
     return {"none": 1, "pellet2": 2, "pellet4": 4}.get(name, 4)
 
 
-def shape_from_case(name: str, diameter: float, density: float) -> ClumpShape | None:
+def check_template(spheres, key: str = "particles.clump_spheres") -> np.ndarray:
+    """A clump template's rows [x, y, z, r] (units of the diameter d) as a (k, 4) array, or a
+    one-line :class:`CaseError` naming ``key``: rows of four finite numbers, positive radii, no
+    sphere inside another, and every sphere overlapping or touching the others (one rigid body,
+    not disjoint spheres)."""
+    rows = np.asarray(spheres, float) if len(spheres) else np.zeros((0, 4))
+    if rows.ndim != 2 or rows.shape[1] != 4:
+        raise CaseError(key, "expected rows [x, y, z, r] (four numbers each, units of particles.diameter)")
+    if not len(rows):
+        raise CaseError(key, "a clump template needs at least one sphere")
+    if not np.all(np.isfinite(rows)):
+        raise CaseError(key, "every entry must be a finite number")
+    bad = np.flatnonzero(rows[:, 3] <= 0)
+    if len(bad):
+        raise CaseError(f"{key}[{bad[0]}]", f"radius {rows[bad[0], 3]:g} must be positive")
+    c, r = rows[:, :3], rows[:, 3]
+    dist = np.linalg.norm(c[:, None, :] - c[None, :, :], axis=2)
+    k = len(rows)
+    for i in range(k):
+        for j in range(k):
+            if i != j and dist[i, j] + r[i] <= r[j] and (r[i] < r[j] or i > j):
+                raise CaseError(f"{key}[{i}]", f"lies inside sphere {j}: it adds nothing to the shape")
+    # connected: overlapping or touching spheres form one body
+    touch = dist <= (r[:, None] + r[None, :]) * (1.0 + 1e-9)
+    seen = {0}
+    todo = [0]
+    while todo:
+        i = todo.pop()
+        for j in np.flatnonzero(touch[i]):
+            if int(j) not in seen:
+                seen.add(int(j))
+                todo.append(int(j))
+    if len(seen) < k:
+        lone = min(set(range(k)) - seen)
+        raise CaseError(f"{key}[{lone}]", "does not touch the other spheres: a clump is one rigid body of "
+                                          "overlapping or touching spheres")
+    return rows
+
+
+def shape_from_case(name: str, diameter: float, density: float, spheres=()) -> ClumpShape | None:
+    """The clump shape of ``particles.clump`` (None for plain spheres); ``spheres``: the rows of
+    ``particles.clump_spheres`` for a template."""
     if name == "none":
         return None
     if name == "pellet2":
         return pellet(2, diameter, density)
     if name == "pellet4":
         return pellet(4, diameter, density)
+    if name == "template":
+        rows = check_template(spheres)
+        return ClumpShape.from_spheres(rows[:, :3] * diameter, rows[:, 3] * diameter, density, name="template")
     raise CaseError("particles.clump", f"unknown clump shape {name!r} (one of {CLUMP_SHAPES})")
+
+
+def particle_shape(p) -> ClumpShape | None:
+    """The clump shape of a case's resolved ``[particles]`` (a dict or a config Section)."""
+    g = p.get if isinstance(p, dict) else (lambda k, _p=p: getattr(_p, k))
+    return shape_from_case(g("clump"), g("diameter"), g("density"), g("clump_spheres"))
 
 
 # ----------------------------------------------------------------------------------- body store

@@ -133,14 +133,14 @@ class ChuteScene(Scene):
     @classmethod
     def sluice(cls, case):
         """The case's sluice inlet (physics.md §5)."""
-        from ..particles.clumps import shape_from_case
+        from ..particles.clumps import particle_shape
         from ..particles.inlets import SluiceInlet
 
         p, inl = case.particles, case.inlet
         return SluiceInlet(width=case.geometry.width, height=inl.height, z=inl.z, diameter=p.diameter,
                            diameter_max=p.diameter_max, seed=p.seed, density=p.density, mass_rate=inl.mass_rate,
                            start_time=inl.start_time, end_time=inl.end_time, gap=inl.gap,
-                           hold_length=inl.hold_length, shape=shape_from_case(p.clump, p.diameter, p.density))
+                           hold_length=inl.hold_length, shape=particle_shape(p))
 
     @classmethod
     def expected_particles(cls, case) -> int:
@@ -161,7 +161,7 @@ class ChuteScene(Scene):
         else:
             t_res = L / v0
         t_feed = max(0.0, min(case.time.end_time, case.inlet.end_time) - case.inlet.start_time)
-        return spheres_per_body(case.particles.clump) * int(case.inlet.mass_rate * min(t_res, t_feed)
+        return spheres_per_body(case.particles.clump, case.particles.clump_spheres) * int(case.inlet.mass_rate * min(t_res, t_feed)
                                                              / inl.particle_mass)
 
     @classmethod

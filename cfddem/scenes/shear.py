@@ -314,11 +314,11 @@ class ShearCellScene(Scene):
 
     # ------------------------------------------------------------------ hooks
     def start(self) -> None:
-        from ..particles.clumps import shape_from_case
+        from ..particles.clumps import particle_shape
 
         case = self.case
         p = case.particles
-        shape = shape_from_case(p.clump, p.diameter, p.density)
+        shape = particle_shape(p)
         spacing = p.diameter if shape is None else 2 * float(np.max(np.linalg.norm(shape.offsets, axis=1)
                                                                     + shape.radii))
         pos = fill_sites(self.g, self.s["n_particles"], spacing, self.s["lattice_gap"], self.s["lattice_jitter"], p.seed)

@@ -82,14 +82,15 @@ class SiloGeometry:
     centre xc, hopper top y_h (0 for a flat bottom), fill lattice, side-wall height H, removal
     depth."""
 
-    def __init__(self, silo: dict, d: float, seed: int = 12345, clump: str = "none", density: float = 2550.0):
+    def __init__(self, silo: dict, d: float, seed: int = 12345, clump: str = "none", density: float = 2550.0,
+                 spheres=()):
         self.seed = seed
         # pellets (particles.clump): one pellet per lattice site, the lattice spaced for the
         # pellet's bounding diameter d_site = 2 max_m (|s_m| + r_m); spheres: d_site = d
         from ..particles.clumps import shape_from_case
         from ..particles.inlets import bounding_diameter
 
-        self.shape = shape_from_case(clump, d, density)
+        self.shape = shape_from_case(clump, d, density, spheres)
         self.d_site = d if self.shape is None else bounding_diameter(self.shape)
         self.W = silo["width"]
         self.L = silo["depth"]
@@ -226,8 +227,13 @@ def check_silo_case(r: dict) -> None:
     from ..particles.clumps import shape_from_case
     from ..particles.inlets import bounding_diameter
 
-    shape = shape_from_case(r["particles"]["clump"], d, r["particles"]["density"])
+    shape = shape_from_case(r["particles"]["clump"], d, r["particles"]["density"], r["particles"]["clump_spheres"])
     d_site = d if shape is None else bounding_diameter(shape)
+    if s["outlet_width"] <= d_site:
+        key = {"none": "silo.outlet_width", "template": "particles.clump_spheres"}.get(r["particles"]["clump"],
+                                                                                     "particles.clump")
+        raise CaseError(key, f"one particle (bounding diameter {d_site:.4g} m) does not fit through the outlet "
+                             f"(silo.outlet_width = {s['outlet_width']:g} m)")
     if s["depth"] < d_site * (1 + s["lattice_gap"]):
         raise CaseError("silo.depth", f"{s['depth']:g} m does not fit one particle (lattice site {d_site:g} m)")
     if not s["lattice_jitter"] < s["lattice_gap"]:
@@ -250,7 +256,8 @@ def check_silo_case(r: dict) -> None:
             if v is not None and not v > 0:
                 raise CaseError(f"silo.{grp}.{k}", f"{v:g} must be positive")
     if s["height"]:
-        g = SiloGeometry(s, d, r["particles"]["seed"], r["particles"]["clump"], r["particles"]["density"])
+        g = SiloGeometry(s, d, r["particles"]["seed"], r["particles"]["clump"], r["particles"]["density"],
+                         r["particles"]["clump_spheres"])
         if s["fill"] == "pour" and s["height"] < g.pour_y + 0.5 * d:
             raise CaseError("silo.height", f"{s['height']:g} m is below the pour height ({g.pour_y:.4g} m)")
         if s["fill"] == "lattice" and s["height"] < g.lattice_top:
@@ -264,7 +271,8 @@ def silo_walls(case):
     from .common import WallSpec
 
     s = case.resolved["silo"]
-    g = SiloGeometry(s, case.particles.diameter, case.particles.seed, case.particles.clump, case.particles.density)
+    p = case.particles
+    g = SiloGeometry(s, p.diameter, p.seed, p.clump, p.density, p.clump_spheres)
     d, W, L, b, H, xc = g.d, g.W, g.L, g.b, g.H, g.xc
     e = d  # extension past a seam
     ex = np.array([1.0, 0, 0])
@@ -330,7 +338,7 @@ class SiloScene(Scene):
     def expected_particles(cls, case) -> int:
         from ..particles.clumps import spheres_per_body
 
-        return spheres_per_body(case.particles.clump) * case.silo.n_particles
+        return spheres_per_body(case.particles.clump, case.particles.clump_spheres) * case.silo.n_particles
 
     @classmethod
     def inserts_clumps(cls, r: dict) -> bool:
@@ -341,7 +349,7 @@ class SiloScene(Scene):
         s = self.case.resolved["silo"]
         self.s = s
         p = self.case.particles
-        self.g = SiloGeometry(s, p.diameter, p.seed, p.clump, p.density)
+        self.g = SiloGeometry(s, p.diameter, p.seed, p.clump, p.density, p.clump_spheres)
         self.check_dt = s["settle_check_interval"]
         self.k_check = 1
         self.gate_open_time = math.nan
