@@ -133,7 +133,7 @@ class GasSolver:
         self.defect_tol = float(defect_tol)
         self.grid = grid
         self.bc = BoundarySet(grid, bcs)
-        if grid.halo < 2 and (advection == "tvd" or any(k == "outlet" for k in self.bc.kinds.values())):
+        if grid.halo < 2 and (advection == "tvd" or self.bc.needs_wide_halo):
             raise CaseError("gas.grid.halo", "TVD advection and pressure outlets need halo = 2")
         self.rho = float(rho)
         self.mu = float(mu)
@@ -307,21 +307,11 @@ class GasSolver:
         # the predictor did not write is face n of a periodic component (= face 0); the
         # halos are filled after the correction
         for c in range(3):
-            if self.bc.periodic[c]:
-                s_n = [slice(None)] * 3
-                s_0 = [slice(None)] * 3
-                s_n[c] = g + grid.shape[c]
-                s_0[c] = g
-                vel[c][tuple(s_n)] = vel[c][tuple(s_0)]
+            self.bc.copy_periodic_faces(vel[c], c, g)
         # --- 2. pressure increment --------------------------------------------------------
         coefs = self._coef
         for c in range(3):
-            if self.bc.periodic[c]:  # face n is face 0
-                s_n = [slice(None)] * 3
-                s_0 = [slice(None)] * 3
-                s_n[c] = -1
-                s_0[c] = 0
-                coefs[c][tuple(s_n)] = coefs[c][tuple(s_0)]
+            self.bc.copy_periodic_faces(coefs[c], c, 0)
         # "mg": with drag the coefficients change at every step, so no comparison with the
         # last set-up's (it skips nothing and its copy costs memory traffic)
         self.psolver.set_coefficients(*coefs, **({"compare": K is None} if self.pressure_solver == "mg" else {}))
