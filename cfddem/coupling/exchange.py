@@ -8,7 +8,7 @@ pressure forces as ``system.ext_force`` for the following N steps.
 Scheme (one coupling step, at particle time t; superscript n+1 = the gas after its step)
 ----------------------------------------------------------------------------------------
 1. Porosity ``eps_c = 1 - sum_a w_ac V_a / V_cell`` (:func:`cfddem.coupling.mapping.porosity`,
-   trilinear, wall fold).  Cells below ``eps_min`` are counted and logged with their minimum
+   trilinear, each side by its BC's ``particle_rule``: fold or wrap).  Cells below ``eps_min`` are counted and logged with their minimum
    and location; nothing is clipped unless ``eps_floor`` is set (then the clipped cells are
    logged and counted in the series).  A cell with ``eps <= 0`` and no floor stops the run
    with a message naming the cell.  ``gas.set_porosity(eps)``.
@@ -47,7 +47,8 @@ Scheme (one coupling step, at particle time t; superscript n+1 = the gas after i
       inner face gradient, and a bed resting on the floor would lose half of its buoyancy
       there (measured: the bottom layer stayed on the distributor above U_mf).
    b. *boundary half-cells*: a cell next to a boundary face that is not a gas unknown (a
-      wall or an inlet; not an outlet or a periodic side) has its outer half outside every
+      wall or an inlet: the sides whose BC declares ``half_cell_source``, see
+      :class:`cfddem.gas.BC`; not an outlet or a periodic side) has its outer half outside every
       gas momentum control volume, so 5a gives its particles only half the gradient (a bed
       on a distributor would lose half its buoyancy in the bottom cell, and its bottom layer
       stays on the floor above U_mf: measured).  The boundary half-cell is added to the

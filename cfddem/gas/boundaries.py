@@ -1,29 +1,34 @@
-"""Boundary conditions of the gas box, applied by filling halo (ghost) cells.
+"""Boundary conditions of the gas box: the one boundary model of cfddem, and the halo fills.
 
-One condition per side of the box: ``"x-", "x+", "y-", "y+", "z-", "z+"``.  Filling the
-halos makes every interior stencil branch-free.  With ``g`` the halo width, ``n`` the cell
-count along the side's normal direction and indices counted in the array (interior index
-``i`` is array index ``i+g``), the lower-side rules are (upper side mirrored):
+One condition per side of the box: ``"x-", "x+", "y-", "y+", "z-", "z+"``.  Each condition
+(a :class:`BC`) declares its rules once: the halo fills below, the gas solver, the
+particle-to-grid mapping and the momentum exchange read them (see :class:`BC` and
+docs/gas.md, "The boundary model").  Filling the halos makes every interior stencil
+branch-free.  With ``g`` the halo width, ``n`` the cell count along the side's normal
+direction and indices counted in the array (interior index ``i`` is array index ``i+g``),
+the lower-side fills are (upper side mirrored):
 
-normal component (the face field whose faces are parallel to the side, boundary face ``g``)
-    * prescribed (``NoSlip``, ``FreeSlip``: u_b = 0; ``Velocity``/``Inlet``/``LidCrossWind``:
-      u_b given): ``a[g] = u_b``, ``a[g-m] = 2 u_b - a[g+m]`` (odd reflection; exact for a
-      field linear in the normal direction);
-    * ``PressureOutlet``: the boundary face is an unknown; ``a[g-m] = a[g]`` (zero gradient);
-    * ``Periodic``: face ``n`` is face ``0``; ``a[g+n] = a[g]``, ``a[g-m] = a[g+n-m]``.
+normal component (the face field whose faces are parallel to the side, boundary face ``g``),
+by ``normal_rule``
+    * ``"prescribed"`` (``NoSlip``, ``FreeSlip``: u_b = 0; ``Velocity``/``Inlet``/
+      ``LidCrossWind``: u_b given): ``a[g] = u_b``, ``a[g-m] = 2 u_b - a[g+m]`` (odd
+      reflection; exact for a field linear in the normal direction);
+    * ``"solved"`` (``PressureOutlet``): the boundary face is an unknown; ``a[g-m] = a[g]``
+      (zero gradient);
+    * ``"periodic"``: face ``n`` is face ``0``; ``a[g+n] = a[g]``, ``a[g-m] = a[g+n-m]``.
 
 tangential components (centred in the normal direction; the boundary lies half a cell
-outside the first interior point)
-    * no-slip / prescribed: ``a[g-m] = 2 u_b - a[g+m-1]`` (the wall value is the mean of
-      the first interior and ghost values; second-order, exact for linear fields);
-    * free slip: ``a[g-m] = a[g+m-1]`` (zero normal gradient, zero shear stress);
-    * outlet: ``a[g-m] = a[g]`` (zero gradient);
-    * periodic: ``a[g-m] = a[g+n-m]``.
+outside the first interior point), by ``tangential_rule``
+    * ``"prescribed"``: ``a[g-m] = 2 u_b - a[g+m-1]`` (the wall value is the mean of the first
+      interior and ghost values; second-order, exact for linear fields);
+    * ``"slip"``: ``a[g-m] = a[g+m-1]`` (zero normal gradient, zero shear stress);
+    * ``"zero_gradient"``: ``a[g-m] = a[g]``;
+    * ``"periodic"``: ``a[g-m] = a[g+n-m]``.
 
-cell-centred pressure: zero normal gradient at prescribed-velocity sides (the projection
-never corrects those faces), ``p_ghost = 2 p_out - p_interior`` at an outlet (Dirichlet
-value ``p_out`` on the boundary face), wrap at periodic sides.  Porosity: zero gradient
-(wrap at periodic sides).
+cell-centred pressure, by ``pressure_rule``: ``"neumann"`` zero normal gradient (at
+prescribed normal faces: the projection never corrects them), ``"dirichlet"``
+``p_ghost = 2 p_b - p_interior`` (the value ``p_b`` of :meth:`BC.pressure` on the boundary
+face), ``"periodic"`` wrap.  Porosity: zero gradient (wrap at periodic sides).
 
 Halos are filled direction by direction (x, then y, then z) over the full extent of the
 other directions, so edges and corners take consistent values.
@@ -88,8 +93,8 @@ class BC:
 
     @property
     def prescribes_velocity(self) -> bool:
-        """Whether the side prescribes a velocity (on its normal face at least)."""
-        return self.normal_rule == "prescribed"
+        """Whether the side prescribes a velocity component (its :meth:`velocity` is read)."""
+        return self.normal_rule == "prescribed" or self.tangential_rule == "prescribed"
 
     @property
     def periodic(self) -> bool:

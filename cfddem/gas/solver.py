@@ -41,6 +41,7 @@ from cfddem.gas.boundaries import BoundarySet
 from cfddem.gas.grid import Field, StaggeredGrid
 from cfddem.gas.momentum import momentum_rhs, viscous_laplacian
 from cfddem.gas.multigrid import MGPressureSolver
+from cfddem.gas.operators import interp_to_centre
 from cfddem.gas.projection import (correction_kernel, local_advective_rate_kernel, porosity_copy_kernel,
                                    predictor_kernel, pressure_rhs_kernel, step_diagnostics_kernel)
 from cfddem.gas.pressure import PressureSolver
@@ -463,13 +464,9 @@ class GasSolver:
     # --- output and diagnostics ---------------------------------------------------------
     def cell_centred_velocity(self) -> np.ndarray:
         """Velocity averaged from the faces to the cell centres, shape (nx, ny, nz, 3)."""
-        g = self.grid.halo
-        nx, ny, nz = self.grid.shape
-        out = np.empty((nx, ny, nz, 3))
-        u, v, w = self.u.data, self.v.data, self.w.data
-        out[..., 0] = 0.5 * (u[g:g + nx, g:g + ny, g:g + nz] + u[g + 1:g + nx + 1, g:g + ny, g:g + nz])
-        out[..., 1] = 0.5 * (v[g:g + nx, g:g + ny, g:g + nz] + v[g:g + nx, g + 1:g + ny + 1, g:g + nz])
-        out[..., 2] = 0.5 * (w[g:g + nx, g:g + ny, g:g + nz] + w[g:g + nx, g:g + ny, g + 1:g + nz + 1])
+        out = np.empty(self.grid.shape + (3,))
+        for c, f in enumerate(self.velocity):
+            out[..., c] = interp_to_centre(f, c).interior  # (f[i] + f[i+1]) / 2
         return out
 
     def divergence_residual(self) -> float:
