@@ -8,9 +8,9 @@ pressure forces as ``system.ext_force`` for the following N steps.
 Scheme (one coupling step, at particle time t; superscript n+1 = the gas after its step)
 ----------------------------------------------------------------------------------------
 1. Porosity ``eps_c = 1 - sum_a w_ac V_a / V_cell`` (:func:`cfddem.coupling.mapping.porosity`,
-   trilinear, each side by its BC's ``particle_rule``: fold or wrap).  Cells below ``eps_min`` are counted and logged with their minimum
-   and location; nothing is clipped unless ``eps_floor`` is set (then the clipped cells are
-   logged and counted in the series).  A cell with ``eps <= 0`` and no floor stops the run
+   trilinear, each side by its BC's ``particle_rule``: fold or wrap).  Cells below
+   ``eps_min`` are counted and logged with their minimum and location; nothing is clipped
+   unless ``eps_floor`` is set (then the clipped cells are logged and counted in the series).  A cell with ``eps <= 0`` and no floor stops the run
    with a message naming the cell.  ``gas.set_porosity(eps)``.
 2. Per particle: porosity ``eps_a`` and gas velocity ``u_a`` interpolated with the same
    weights (each velocity component from its own face grid), ``Re_a = eps_a rho |u_a - v_a|
@@ -48,8 +48,8 @@ Scheme (one coupling step, at particle time t; superscript n+1 = the gas after i
       there (measured: the bottom layer stayed on the distributor above U_mf).
    b. *boundary half-cells*: a cell next to a boundary face that is not a gas unknown (a
       wall or an inlet: the sides whose BC declares ``half_cell_source``, see
-      :class:`cfddem.gas.BC`; not an outlet or a periodic side) has its outer half outside every
-      gas momentum control volume, so 5a gives its particles only half the gradient (a bed
+      :class:`cfddem.gas.BC`; not an outlet or a periodic side) has its outer half outside
+      every gas momentum control volume, so 5a gives its particles only half the gradient (a bed
       on a distributor would lose half its buoyancy in the bottom cell, and its bottom layer
       stays on the floor above U_mf: measured).  The boundary half-cell is added to the
       first interior face's control volume: its particles receive ``-V_a w_a0 g_1/2``

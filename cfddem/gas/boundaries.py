@@ -255,10 +255,10 @@ class BoundarySet:
     """The six boundary conditions of a grid, with their boundary values precomputed.
 
     Everything here is read from the rules each BC declares (:class:`BC`).  Attributes used
-    by the solver and the coupling: ``kinds[side]`` (names, for messages), ``rules[side]``
-    (the BC's five rules as a dict), ``periodic[d]``, ``face_range[d]`` (first and
-    one-past-last interior face index of component d that the momentum equation updates:
-    the boundary face is included where its ``normal_rule`` is "solved"),
+    by the solver and the coupling: ``kinds[side]`` (names, for messages), ``periodic[d]``,
+    ``face_range[d]`` (first and one-past-last interior face index of component d that the
+    momentum equation updates: the boundary face is included where its ``normal_rule`` is
+    "solved"),
     ``pressure_bc[side]`` in {"neumann", "dirichlet", "periodic"}, ``particle_rules``
     (the six ``particle_rule`` values in the order of ``SIDES``, for the mapping) and
     ``half_cell[d]`` (whether the lower and the upper side of axis d carry a boundary
@@ -281,7 +281,6 @@ class BoundarySet:
                 raise CaseError(f"gas.bcs.{s}", f"not a boundary condition: {bc!r}")
             check_rules(s, bc)
         self.kinds = {s: self.bcs[s].kind for s in SIDES}
-        self.rules = {s: {name: getattr(self.bcs[s], name) for name in RULES} for s in SIDES}
         per = []
         for d in range(3):
             lo, hi = self.bcs[SIDES[2 * d]].periodic, self.bcs[SIDES[2 * d + 1]].periodic
