@@ -146,7 +146,7 @@ def floor_load(sys_, cg) -> float:
 
 def bed_porosity_seen(sys_, cg) -> float:
     """Mean porosity interpolated at the particles (what the closures see)."""
-    plan = MappingPlan(cg.grid, np.ascontiguousarray(sys_.pos), cg.periodic)
+    plan = MappingPlan(cg.grid, np.ascontiguousarray(sys_.pos), cg.gas.bc)
     return float(plan.interpolate(cg.gas.eps.interior, "ccc").mean())
 
 
@@ -154,7 +154,7 @@ def closure_pressure_drop(sys_, cg, U, closure="beetstra"):
     """Fixed-bed pressure drop from the closure at each particle's own porosity: the gas
     balance ``eps grad p = drag density`` gives dp = sum_a K(eps_a, Re) (U/eps_a) / (eps_a A),
     Re = rho U d / mu (the superficial Reynolds number of the closures)."""
-    plan = MappingPlan(cg.grid, np.ascontiguousarray(sys_.pos), cg.periodic)
+    plan = MappingPlan(cg.grid, np.ascontiguousarray(sys_.pos), cg.gas.bc)
     eps_a = plan.interpolate(cg.gas.eps.interior, "ccc")
     d = 2.0 * sys_.radius
     re = RHO_G * U * d / MU

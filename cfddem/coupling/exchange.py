@@ -8,9 +8,9 @@ pressure forces as ``system.ext_force`` for the following N steps.
 Scheme (one coupling step, at particle time t; superscript n+1 = the gas after its step)
 ----------------------------------------------------------------------------------------
 1. Porosity ``eps_c = 1 - sum_a w_ac V_a / V_cell`` (:func:`cfddem.coupling.mapping.porosity`,
-   trilinear, wall fold).  Cells below ``eps_min`` are counted and logged with their minimum
-   and location; nothing is clipped unless ``eps_floor`` is set (then the clipped cells are
-   logged and counted in the series).  A cell with ``eps <= 0`` and no floor stops the run
+   trilinear, each side by its BC's ``particle_rule``: fold or wrap).  Cells below
+   ``eps_min`` are counted and logged with their minimum and location; nothing is clipped
+   unless ``eps_floor`` is set (then the clipped cells are logged and counted in the series).  A cell with ``eps <= 0`` and no floor stops the run
    with a message naming the cell.  ``gas.set_porosity(eps)``.
 2. Per particle: porosity ``eps_a`` and gas velocity ``u_a`` interpolated with the same
    weights (each velocity component from its own face grid), ``Re_a = eps_a rho |u_a - v_a|
@@ -47,8 +47,9 @@ Scheme (one coupling step, at particle time t; superscript n+1 = the gas after i
       inner face gradient, and a bed resting on the floor would lose half of its buoyancy
       there (measured: the bottom layer stayed on the distributor above U_mf).
    b. *boundary half-cells*: a cell next to a boundary face that is not a gas unknown (a
-      wall or an inlet; not an outlet or a periodic side) has its outer half outside every
-      gas momentum control volume, so 5a gives its particles only half the gradient (a bed
+      wall or an inlet: the sides whose BC declares ``half_cell_source``, see
+      :class:`cfddem.gas.BC`; not an outlet or a periodic side) has its outer half outside
+      every gas momentum control volume, so 5a gives its particles only half the gradient (a bed
       on a distributor would lose half its buoyancy in the bottom cell, and its bottom layer
       stays on the floor above U_mf: measured).  The boundary half-cell is added to the
       first interior face's control volume: its particles receive ``-V_a w_a0 g_1/2``
@@ -93,25 +94,32 @@ from cfddem.coupling import drag as _drag
 from cfddem.coupling.mapping import MappingPlan
 from cfddem.errors import CaseError
 from cfddem.gas import GasSolver, Inlet, NoSlip, Periodic, PressureOutlet, StaggeredGrid
+from cfddem.gas.operators import c2f_grad_at, c2f_interp_at, f2c_interp_at, grad_to_face, interp_to_face
 
 __all__ = ["CoupledGas", "CouplingStatus", "build_coupled_gas", "coupling_diagnostics", "column_gas"]
 
 _LOC = ("fcc", "cfc", "ccf")
+_UNIT = ((1, 0, 0), (0, 1, 0), (0, 0, 1))
 
 
 
 # ---------------------------------------------------------------------------- grid kernels
 @kernel(inline="always")
 def _face_grad(p, hw, c, i, j, k, f, lo, hi, dx):
-    """g_f = (p_I - p_{I-1})/h on face f of component c at the cross indices of cell (i, j, k)
-    (halo width hw; only index c is replaced by f), 0 outside the updated faces [lo, hi)."""
+    """g_f = (p_I - p_{I-1})/h (:func:`cfddem.gas.operators.c2f_grad_at`) on face f of component
+    c at the cross indices of cell (i, j, k) (halo width hw; only index c is replaced by f),
+    0 outside the updated faces [lo, hi)."""
     if f < lo or f >= hi:
         return 0.0
-    if c == 0:
-        return (p[hw + f, hw + j, hw + k] - p[hw + f - 1, hw + j, hw + k]) / dx
-    if c == 1:
-        return (p[hw + i, hw + f, hw + k] - p[hw + i, hw + f - 1, hw + k]) / dx
-    return (p[hw + i, hw + j, hw + f] - p[hw + i, hw + j, hw + f - 1]) / dx
+    di, dj, dk = _unit(c)
+    return c2f_grad_at(p, hw + (f if c == 0 else i), hw + (f if c == 1 else j), hw + (f if c == 2 else k),
+                       di, dj, dk, dx)
+
+
+@kernel(inline="always")
+def _unit(c):
+    """The unit vector of axis c as three integers."""
+    return (1 if c == 0 else 0), (1 if c == 1 else 0), (1 if c == 2 else 0)
 
 
 @kernel
@@ -151,25 +159,13 @@ def _pressure_layer(p, e, hw, spacing, flo, fhi, per, blo, bhi, G, Gb, i):
                     b += 0.5 * _face_grad(p, hw, c, i, j, k, n - 1, lo, hi, dx)
                 Gb[i, j, k, c] = b
                 # solid part over the faces: the low face of every cell, and face n of the last
+                di, dj, dk = _unit(c)
                 ii = hw + i
                 jj = hw + j
                 kk = hw + k
-                if c == 0:
-                    em = e[ii - 1, jj, kk]
-                elif c == 1:
-                    em = e[ii, jj - 1, kk]
-                else:
-                    em = e[ii, jj, kk - 1]
-                ef = 0.5 * (em + e[ii, jj, kk])
-                sc = (1.0 - ef) * g0
+                sc = (1.0 - c2f_interp_at(e, ii, jj, kk, di, dj, dk)) * g0
                 if a == n - 1:
-                    if c == 0:
-                        ep = e[ii + 1, jj, kk]
-                    elif c == 1:
-                        ep = e[ii, jj + 1, kk]
-                    else:
-                        ep = e[ii, jj, kk + 1]
-                    ef = 0.5 * (e[ii, jj, kk] + ep)
+                    ef = c2f_interp_at(e, ii + di, jj + dj, kk + dk, di, dj, dk)
                     sc += (1.0 - ef) * _face_grad(p, hw, c, i, j, k, n, lo, hi, dx)
                 if c == 0:
                     s0 += sc
@@ -264,9 +260,29 @@ def _average_kernel(u, v, w, hw, dt, acc):
                 a = hw + i
                 b = hw + j
                 c = hw + k
-                acc[i, j, k, 0] += 0.5 * (u[a, b, c] + u[a + 1, b, c]) * dt
-                acc[i, j, k, 1] += 0.5 * (v[a, b, c] + v[a, b + 1, c]) * dt
-                acc[i, j, k, 2] += 0.5 * (w[a, b, c] + w[a, b, c + 1]) * dt
+                acc[i, j, k, 0] += f2c_interp_at(u, a, b, c, 1, 0, 0) * dt
+                acc[i, j, k, 1] += f2c_interp_at(v, a, b, c, 0, 1, 0) * dt
+                acc[i, j, k, 2] += f2c_interp_at(w, a, b, c, 0, 0, 1) * dt
+    return 0
+
+
+@kernel
+def _half_cell_source_kernel(p, e, hw, di, dj, dk, f, cell, lo, hi, h, rhog, half_solid, S):
+    """S[face f along (di, dj, dk)] += (eps_b/2) s (-g_f + rho g_c) over the boundary layer
+    (:meth:`CoupledGas._boundary_source`): eps_b the porosity of boundary cell ``cell`` beside
+    the face, g_f = :func:`~cfddem.gas.operators.c2f_grad_at` of p on face f (0 unless
+    lo <= f < hi), ``s = min(1, (1 - eps_b)/half_solid)``; S an interior face array."""
+    n0, n1, n2 = S.shape
+    i0, i1 = (f, f + 1) if di == 1 else (0, n0)
+    j0, j1 = (f, f + 1) if dj == 1 else (0, n1)
+    k0, k1 = (f, f + 1) if dk == 1 else (0, n2)
+    for i in range(i0, i1):
+        for j in range(j0, j1):
+            for k in range(k0, k1):
+                eb = e[hw + (cell if di == 1 else i), hw + (cell if dj == 1 else j), hw + (cell if dk == 1 else k)]
+                g = c2f_grad_at(p, hw + i, hw + j, hw + k, di, dj, dk, h) if lo <= f < hi else 0.0
+                blend = min(1.0, (1.0 - eb) / half_solid)
+                S[i, j, k] += 0.5 * eb * blend * (-g + rhog)
     return 0
 
 
@@ -371,13 +387,9 @@ class CoupledGas:
         self.average_start = 0.0
         self._avg_sum = np.zeros(grid.shape + (3,))
         self._avg_time = 0.0
-        # updated-face masks: which faces of each component the momentum equation updates;
-        # boundary sides whose boundary face is not a gas unknown (walls, inlets)
-        self._bside = []
-        for c in range(3):
-            lo, hi = self.gas.bc.face_range[c]
-            per = self.gas.bc.periodic[c]
-            self._bside.append((not per and lo == 1, not per and hi == grid.shape[c]))
+        # the boundary sides with a half-cell (step 5b): their BC's half_cell_source (walls,
+        # inlets: the sides whose boundary face is not a gas unknown)
+        self._bside = [tuple(bool(v) for v in pair) for pair in self.gas.bc.half_cell]
         self._has_boundary = [a or b for a, b in self._bside]
         self._g = tuple(float(v) for v in gravity)
         # parameters of _pressure_fields_kernel: spacing, updated face range, periodic, boundary sides
@@ -441,7 +453,7 @@ class CoupledGas:
         vel = np.ascontiguousarray(sys_.vel)  # read only here (ext_force is written)
         rad = np.ascontiguousarray(sys_.radius)
         mass = np.ascontiguousarray(sys_.mass)
-        plan = MappingPlan(grid, pos, self.periodic, workspace=self._ws)
+        plan = MappingPlan(grid, pos, self.gas.bc, workspace=self._ws)  # the BCs' particle rules
         vol = 4.0 / 3.0 * np.pi * rad**3
         # --- 1. porosity ------------------------------------------------------------------
         por = plan.porosity(rad, self.eps_min, volume=vol)
@@ -592,37 +604,24 @@ class CoupledGas:
         return m.reshape(shape)
 
     def _face_gradients(self):
-        """g_f = (p_I - p_{I-1})/h on every face of each component (from the halo-filled p),
-        zero on faces that the momentum equation does not update."""
-        gas, grid = self.gas, self.grid
-        h = grid.halo
-        p = gas.p.data
-        out = []
-        for c in range(3):
-            n = grid.shape[c]
-            sl = [slice(h, h + grid.shape[e]) for e in range(3)]
-            sl[c] = slice(h - 1, h + n + 1)
-            g = np.diff(p[tuple(sl)], axis=c)
-            g /= grid.spacing[c]
-            lo, hi = self.gas.bc.face_range[c]
-            g[_sl(c, slice(0, lo))] = 0.0
-            g[_sl(c, slice(hi, n + 1))] = 0.0
-            out.append(g)
-        return out
+        """g_f = (p_I - p_{I-1})/h (:func:`cfddem.gas.operators.grad_to_face` of the halo-filled p)
+        on every face of each component, zero on faces that the momentum equation does not
+        update."""
+        return [self._interior_faces(grad_to_face(self.gas.p, c), c, masked=True) for c in range(3)]
 
     def _face_porosity(self):
-        """The gas's face porosity eps_f = (eps_{I-1} + eps_I)/2 on every face (halo-filled eps)."""
-        grid = self.grid
-        h = grid.halo
-        e = self.gas.eps.data
-        out = []
-        for c in range(3):
-            n = grid.shape[c]
-            a = [slice(h, h + grid.shape[k]) for k in range(3)]
-            b = list(a)
-            a[c] = slice(h - 1, h + n)
-            b[c] = slice(h, h + n + 1)
-            out.append(0.5 * (e[tuple(a)] + e[tuple(b)]))
+        """The gas's face porosity eps_f = (eps_{I-1} + eps_I)/2 on every face
+        (:func:`cfddem.gas.operators.interp_to_face` of the halo-filled eps)."""
+        return [self._interior_faces(interp_to_face(self.gas.eps, c), c) for c in range(3)]
+
+    def _interior_faces(self, f, c, masked=False):
+        """The interior faces (0..n along c) of a component-c face Field, as a new array; with
+        ``masked`` zero outside the faces the momentum equation updates."""
+        out = np.array(f.interior)
+        if masked:
+            lo, hi = self.gas.bc.face_range[c]
+            out[_sl(c, slice(0, lo))] = 0.0
+            out[_sl(c, slice(hi, None))] = 0.0
         return out
 
     def centre_pressure_gradient(self):
@@ -639,33 +638,19 @@ class CoupledGas:
         cells keep the gas solver's own discretisation.  None if the box has no such side."""
         if not any(self._has_boundary):
             return None
-        h = self.grid.halo
-        e = self.gas.eps.data
+        grid = self.grid
         p = self.gas.p.data
-        core = [slice(h, h + n) for n in self.grid.shape]
+        e = self.gas.eps.data
         out = []
         for c in range(3):
-            n = self.grid.shape[c]
-            shp = list(self.grid.shape)
-            shp[c] += 1
-            S = np.zeros(shp)
+            n = grid.shape[c]
+            S = self._work("_S" + _LOC[c], grid.interior_shape(_LOC[c]))
+            S.fill(0.0)
             lo, hi = self.gas.bc.face_range[c]
             for lower, on in zip((True, False), self._bside[c]):
-                if not on:
-                    continue
-                f = 1 if lower else n - 1
-                cell = 0 if lower else n - 1
-                sl = list(core)
-                sl[c] = slice(h + cell, h + cell + 1)
-                eb = e[tuple(sl)]
-                # the face gradient of _face_gradients on face f only
-                a = list(core)
-                b = list(core)
-                a[c] = slice(h + f, h + f + 1)
-                b[c] = slice(h + f - 1, h + f)
-                g = (p[tuple(a)] - p[tuple(b)]) / self.grid.spacing[c] if lo <= f < hi else np.zeros_like(eb)
-                blend = np.minimum(1.0, (1.0 - eb) / self.HALF_CELL_SOLID)
-                S[_sl(c, slice(f, f + 1))] += 0.5 * eb * blend * (-g + self.rho * self._g[c])
+                if on:
+                    _half_cell_source_kernel(p, e, int(grid.halo), *_UNIT[c], 1 if lower else n - 1, 0 if lower else n - 1,
+                                             lo, hi, float(grid.spacing[c]), self.rho * self._g[c], self.HALF_CELL_SOLID, S)
             out.append(S)
         return tuple(out)
 

@@ -22,25 +22,33 @@ Node locations (names as in :mod:`cfddem.gas.grid`: ``ccc`` centres, ``fcc`` x-f
 is ``(nx, ny, nz)``, an x-face field ``(nx+1, ny, nz)`` and so on.  ``Field`` objects (with
 an ``.interior`` attribute) are accepted where an array is read.
 
-Wall rule: a particle next to a wall keeps its whole volume (and its whole force) inside
-the domain.  Along a non-periodic axis, weight that would fall on a node outside the set of
-nodes the gas solver updates is folded onto the adjacent one:
+Boundary rules.  What a particle near a side of the box sees and deposits is the
+``particle_rule`` that the side's boundary condition declares (:class:`cfddem.gas.BC`; the
+mapping takes the gas's :class:`~cfddem.gas.BoundarySet`, a dict side -> BC, or, for a box
+of walls and periodic axes, three periodic flags):
 
-* centre nodes: a point within half a cell of the wall would give weight to the halo cell
-  -1 (or n); that weight goes to cell 0 (or n-1);
-* face nodes along the face normal: the boundary faces 0 and n carry prescribed (wall)
-  velocities and are not updated by the momentum equation, so their weight goes to faces 1
-  (and n-1).  A force deposited there would be lost; instead the whole force reaches the
-  gas.  Interpolation uses the same folded weights (it is the transpose), so within half a
-  cell of a wall the particle sees the first interior face's velocity.
-* particle centres outside the box on a wall axis are clamped onto it (the count is
-  reported by :func:`porosity` as ``n_outside``).
+* ``"fold"`` (walls, inlets, and the pressure outlet): a particle keeps its whole volume
+  (and its whole force) inside the domain.  Weight that would fall on a node outside the set
+  of nodes the gas solver updates is folded onto the adjacent one:
 
-Periodic axes wrap: node n is node 0.  Face grids keep their ``n+1`` entries along a
-periodic normal axis; deposition writes faces 0..n-1 only (face n stays 0) and
-interpolation reads face 0 for face n, so the pair stays exactly adjoint.  A non-periodic
-axis with a single cell has no interior face; the normal component is then dropped
-(deposited and interpolated as zero).
+  - centre nodes: a point within half a cell of the side would give weight to the halo cell
+    -1 (or n); that weight goes to cell 0 (or n-1);
+  - face nodes along the face normal: the boundary faces 0 and n carry prescribed (wall)
+    velocities and are not updated by the momentum equation, so their weight goes to faces 1
+    (and n-1).  A force deposited there would be lost; instead the whole force reaches the
+    gas.  Interpolation uses the same folded weights (it is the transpose), so within half a
+    cell of a wall the particle sees the first interior face's velocity.  (At a pressure
+    outlet the boundary face is a gas unknown, but the outlet declares the same rule: its
+    weight goes to face n-1 as well.)
+  - particle centres outside the box are clamped onto the side (the count is reported by
+    :func:`porosity` as ``n_outside``).
+
+* ``"wrap"`` (periodic sides, in pairs): node n is node 0.  Face grids keep their ``n+1``
+  entries along a periodic normal axis; deposition writes faces 0..n-1 only (face n stays 0)
+  and interpolation reads face 0 for face n, so the pair stays exactly adjoint.
+
+A folding axis with a single cell has no interior face; the normal component is then
+dropped (deposited and interpolated as zero).
 
 :class:`MappingPlan` computes the weights and the particle sort once per location for one
 particle configuration and reuses them for every field of a coupling step; the module
@@ -82,6 +90,7 @@ import numpy as np
 
 from cfddem._jit import kernel, parallel_kernel, prange
 from cfddem.errors import CaseError
+from cfddem.gas.operators import c2f_gradient
 
 __all__ = [
     "GridSpec",
@@ -146,15 +155,46 @@ def as_grid_spec(grid) -> GridSpec:
     return GridSpec(origin, spacing, shape)
 
 
-def _periodic(periodic) -> tuple:
-    if periodic is None:
-        return (False, False, False)
-    if isinstance(periodic, (bool, np.bool_)):
-        return (bool(periodic),) * 3
-    p = tuple(bool(v) for v in periodic)
-    if len(p) != 3:
-        raise CaseError("coupling.periodic", f"need three flags, got {periodic!r}")
-    return p
+SIDES = ("x-", "x+", "y-", "y+", "z-", "z+")
+PARTICLE_RULES = ("fold", "wrap")
+
+
+def _side_rules(boundaries) -> tuple:
+    """The mapping rule of each side (``"fold"`` or ``"wrap"``, in the order of ``SIDES``) from
+    ``boundaries``: the gas's boundary conditions (an object with ``particle_rules``, e.g. a
+    :class:`cfddem.gas.BoundarySet`, or a dict side -> BC, whose ``particle_rule`` is read,
+    or side -> rule; or the six rules), or periodic flags (None: none periodic; a bool for all
+    three axes; three flags): wrap on the periodic axes, fold on the others."""
+    if boundaries is None:
+        rules = ("fold",) * 6
+    elif hasattr(boundaries, "particle_rules"):
+        rules = tuple(boundaries.particle_rules)
+    elif isinstance(boundaries, dict):
+        missing = [s for s in SIDES if s not in boundaries]
+        if missing:
+            raise CaseError("coupling.boundaries", f"need a rule for each of {SIDES}; missing {missing}")
+        rules = tuple(getattr(boundaries[s], "particle_rule", boundaries[s]) for s in SIDES)
+    elif isinstance(boundaries, (bool, np.bool_)):
+        rules = ("wrap" if boundaries else "fold",) * 6
+    elif len(boundaries) == 6 and all(isinstance(r, str) for r in boundaries):
+        rules = tuple(boundaries)
+    else:
+        flags = tuple(bool(v) for v in boundaries)
+        if len(flags) != 3:
+            raise CaseError("coupling.periodic", f"need three flags, got {boundaries!r}")
+        rules = tuple("wrap" if flags[a] else "fold" for a in range(3) for _ in range(2))
+    for s, r in zip(SIDES, rules):
+        if r not in PARTICLE_RULES:
+            raise CaseError("coupling.boundaries", f"side {s}: particle rule {r!r}, expected one of {PARTICLE_RULES}")
+    for a in range(3):
+        if (rules[2 * a] == "wrap") != (rules[2 * a + 1] == "wrap"):
+            raise CaseError("coupling.boundaries", f"side {SIDES[2 * a]}: wrap must be the rule of both sides or of none")
+    return rules
+
+
+def _periodic(rules: tuple) -> tuple:
+    """Per axis: whether the side rules wrap."""
+    return tuple(rules[2 * a] == "wrap" for a in range(3))
 
 
 def node_shape(grid, location="ccc") -> tuple:
@@ -185,7 +225,14 @@ class _Axes(NamedTuple):
     dead: bool  # a face grid on a one-cell wall axis: no interior face
 
 
-def _axes(spec: GridSpec, location: str, periodic: tuple) -> _Axes:
+def _axes(spec: GridSpec, location: str, rules: tuple) -> _Axes:
+    """The axis parameters of the weights of ``location`` under the side rules (:func:`_side_rules`).
+
+    "wrap" (both sides): node n is node 0.  "fold": a particle centre beyond the side is
+    clamped onto it (node units: 0 or n on a face axis, -0.5 or n - 0.5 on a centre axis), and
+    weight beyond the first node that the gas solver updates next to the side folds onto that
+    node: the first cell centre, or on the face grid along the side's normal the first
+    interior face (the boundary face carries the boundary's value)."""
     x0 = np.empty(3)
     h = np.empty(3)
     n = np.empty(3, np.int64)
@@ -202,12 +249,15 @@ def _axes(spec: GridSpec, location: str, periodic: tuple) -> _Axes:
         face = location[a] == "f"
         h[a] = ha
         n[a] = na
-        per[a] = 1 if periodic[a] else 0
+        wrap = rules[2 * a] == "wrap"
+        per[a] = 1 if wrap else 0
         x0[a] = oa if face else oa + 0.5 * ha
-        if periodic[a]:
+        if wrap:
             lo[a], hi[a], bmin[a], nbin[a] = 0, na - 1, 0, na
             smin[a], smax[a] = 0.0, float(na)
-        elif face:
+            continue
+        # "fold" on both sides (the only other rule)
+        if face:
             lo[a], hi[a], bmin[a], nbin[a] = 1, na - 1, 0, na
             smin[a], smax[a] = 0.0, float(na)
             if na < 2:
@@ -768,8 +818,8 @@ class _Weights(NamedTuple):
     w1: np.ndarray
 
 
-def _weights(spec: GridSpec, location: str, pos: np.ndarray, periodic: tuple) -> _Weights:
-    ax = _axes(spec, location, periodic)
+def _weights(spec: GridSpec, location: str, pos: np.ndarray, rules: tuple) -> _Weights:
+    ax = _axes(spec, location, rules)
     m = pos.shape[0]
     a0 = np.empty((m, 3), np.int64)
     a1 = np.empty((m, 3), np.int64)
@@ -785,9 +835,13 @@ class MappingPlan:
     deposition all use the same positions.  Results are bit-identical to the module
     functions (which build a plan per call).
 
-        plan = MappingPlan(grid, pos, periodic)
+        plan = MappingPlan(grid, pos, boundaries)
         res = plan.porosity(radius); uvw = plan.interpolate_faces(u, v, w)
         su, sv, sw = plan.deposit_faces(force)
+
+    ``boundaries``: the side rules (module docstring, "Boundary rules"): the gas's
+    BoundarySet, a dict side -> BC, or periodic flags (None: a box of walls); the plan keeps
+    them as ``rules`` (six strings) and ``periodic`` (per axis).
 
     The plan holds references to nothing but its own arrays; build a new one when the
     particles move.  ``workspace``: a dict kept by the caller and handed to every plan; the
@@ -796,10 +850,11 @@ class MappingPlan:
     plan with the same workspace (copy what must outlive it).
     """
 
-    def __init__(self, grid, pos, periodic=None, workspace=None):
+    def __init__(self, grid, pos, boundaries=None, workspace=None):
         self.spec = as_grid_spec(grid)
         self.pos = _positions(pos)
-        self.periodic = _periodic(periodic)
+        self.rules = _side_rules(boundaries)
+        self.periodic = _periodic(self.rules)
         self._w = {}
         self._cw = None  # compact weights (idx, wf), computed on first use
         self._sorted = {}  # z-chunk sorts of the particles, per column of idx
@@ -830,7 +885,7 @@ class MappingPlan:
         locations in one parallel pass (:func:`_weights4_kernel`), later calls reuse them."""
         _check_location(location)
         if not self._w:
-            axes = [_axes(self.spec, loc, self.periodic) for loc in LOCATIONS]
+            axes = [_axes(self.spec, loc, self.rules) for loc in LOCATIONS]
             m = self.n
             a0 = self._buf("a0", (4, m, 3), np.int64)
             a1 = self._buf("a1", (4, m, 3), np.int64)
@@ -871,11 +926,11 @@ class MappingPlan:
         """Per-location axis parameters for the fused kernels: ``fpar (4, 3, 4)`` (x0, h, smin,
         smax), ``ipar (4, 3, 5)`` (n, per, lo, hi, bmin) and the live flags of the three face
         grids (kept in the workspace for the same grid)."""
-        key = (self.spec, self.periodic)
+        key = (self.spec, self.rules)
         cached = self._ws.get("_params")
         if cached is not None and cached[0] == key:
             return cached[1]
-        axes = [_axes(self.spec, loc, self.periodic) for loc in LOCATIONS]
+        axes = [_axes(self.spec, loc, self.rules) for loc in LOCATIONS]
         fpar = np.empty((4, 3, 4))
         ipar = np.empty((4, 3, 5), np.int64)
         for i, ax in enumerate(axes):
@@ -979,7 +1034,7 @@ class MappingPlan:
 
     def gradient(self, p) -> np.ndarray:
         """See :func:`gradient_at_particles`."""
-        return self.interpolate_faces(*face_gradient(self.spec, p, self.periodic))
+        return self.interpolate_faces(*face_gradient(self.spec, p, self.rules))
 
     # ---------------------------------------------------------------- fused (coupling step)
     def _vel(self, vel):
@@ -1129,7 +1184,7 @@ def _check_location(location):
         raise CaseError("coupling.location", f"unknown location {location!r}; expected one of {LOCATIONS}")
 
 
-def trilinear_weights(grid, pos, location="ccc", periodic=None):
+def trilinear_weights(grid, pos, location="ccc", boundaries=None):
     """Node indices ``(n, 8, 3)`` and weights ``(n, 8)`` of each particle on the nodes of
     ``location`` (after the wall fold and periodic wrap; a node may appear twice).
 
@@ -1138,7 +1193,7 @@ def trilinear_weights(grid, pos, location="ccc", periodic=None):
     spec = as_grid_spec(grid)
     _check_location(location)
     pos = _positions(pos)
-    wt = _weights(spec, location, pos, _periodic(periodic))
+    wt = _weights(spec, location, pos, _side_rules(boundaries))
     m = pos.shape[0]
     idx = np.empty((m, 8, 3), np.int64)
     w = np.empty((m, 8))
@@ -1154,11 +1209,11 @@ def trilinear_weights(grid, pos, location="ccc", periodic=None):
     return idx, w
 
 
-def deposit(grid, pos, values, location="ccc", periodic=None) -> np.ndarray:
+def deposit(grid, pos, values, location="ccc", boundaries=None) -> np.ndarray:
     """Spread per-particle scalars ``values (n,)`` to the nodes of ``location`` with the
     trilinear weights: S[t] = sum_a w_at values[a] (a sum, not a density).  Race-free and
     bit-identical for any thread count; sum(S) = sum(values) up to round-off."""
-    return MappingPlan(grid, pos, periodic).deposit(values, location)
+    return MappingPlan(grid, pos, boundaries).deposit(values, location)
 
 
 class PorosityResult(NamedTuple):
@@ -1176,24 +1231,24 @@ class PorosityResult(NamedTuple):
     n_outside: int
 
 
-def porosity(grid, pos, radius, periodic=None, eps_min=0.3) -> PorosityResult:
+def porosity(grid, pos, radius, boundaries=None, eps_min=0.3) -> PorosityResult:
     """Porosity eps_c = 1 - sum_a V_a w_ac / V_cell at the cell centres, V_a = 4/3 pi R_a^3.
 
     Never clipped: cells below ``eps_min`` (and below 0) are counted and the minimum and its
     cell are returned so that the caller can log where and how much.  Point-volume trilinear
     deposition: cells smaller than about 3 particle diameters give a noisy eps (and, if much
     smaller than a particle, eps < 0)."""
-    return MappingPlan(grid, pos, periodic).porosity(radius, eps_min)
+    return MappingPlan(grid, pos, boundaries).porosity(radius, eps_min)
 
 
-def deposit_faces(grid, pos, values, periodic=None):
+def deposit_faces(grid, pos, values, boundaries=None):
     """Spread per-particle vectors ``values (n, 3)`` (e.g. the reaction of the drag force) to
     the staggered face grids: component 0 to the x-faces ``(nx+1, ny, nz)``, 1 to the
     y-faces, 2 to the z-faces, each with its own trilinear weights.  Returns (Su, Sv, Sw),
     sums per face [same unit as values]; divide by the cell volume for a density.  The sum
     over faces equals the sum over particles component by component (up to round-off),
     except for a component normal to a one-cell wall axis (dropped, see module doc)."""
-    return MappingPlan(grid, pos, periodic).deposit_faces(values)
+    return MappingPlan(grid, pos, boundaries).deposit_faces(values)
 
 
 def _array(field, shape, name):
@@ -1204,60 +1259,50 @@ def _array(field, shape, name):
     return arr
 
 
-def interpolate(grid, field, pos, location="ccc", periodic=None) -> np.ndarray:
+def interpolate(grid, field, pos, location="ccc", boundaries=None) -> np.ndarray:
     """Value of a node field of ``location`` at the particles (n,): sum_t w_at field[t]."""
-    return MappingPlan(grid, pos, periodic).interpolate(field, location)
+    return MappingPlan(grid, pos, boundaries).interpolate(field, location)
 
 
-def interpolate_centres(grid, field, pos, periodic=None) -> np.ndarray:
+def interpolate_centres(grid, field, pos, boundaries=None) -> np.ndarray:
     """A cell-centre field ``(nx, ny, nz)`` at the particles (n,)."""
-    return interpolate(grid, field, pos, "ccc", periodic)
+    return interpolate(grid, field, pos, "ccc", boundaries)
 
 
-def interpolate_faces(grid, u, v, w, pos, periodic=None) -> np.ndarray:
+def interpolate_faces(grid, u, v, w, pos, boundaries=None) -> np.ndarray:
     """Staggered velocity at the particles, (n, 3): u from the x-faces ``(nx+1, ny, nz)``, v
     from the y-faces, w from the z-faces, each with its own weights (the transpose of
     :func:`deposit_faces`)."""
-    return MappingPlan(grid, pos, periodic).interpolate_faces(u, v, w)
+    return MappingPlan(grid, pos, boundaries).interpolate_faces(u, v, w)
 
 
-def face_gradient(grid, p, periodic=None):
-    """grad p on the faces: (gx, gy, gz) with gx[i] = (p[i] - p[i-1])/dx on x-face i.
+def face_gradient(grid, p, boundaries=None):
+    """grad p on the faces: (gx, gy, gz) with gx[i] = (p[i] - p[i-1])/dx on x-face i
+    (:func:`cfddem.gas.operators.c2f_gradient`).
 
-    Interior faces 1..n-1 by the central difference; on a periodic axis face 0 (and its
-    image face n) uses p[0] - p[n-1]; on a wall axis the boundary faces are set to 0 (the
-    wall fold never gives them weight)."""
+    Interior faces 1..n-1 by the central difference; across a "wrap" side face 0 (and its
+    image face n) uses p[0] - p[n-1]; across a "fold" side the boundary face is 0 (the fold
+    never gives it weight).  ``boundaries`` as for :class:`MappingPlan`."""
     spec = as_grid_spec(grid)
-    per = _periodic(periodic)
+    rules = _side_rules(boundaries)
     p = _array(p, spec.shape, "pressure (ccc)")
     grads = []
     for a in range(3):
-        h = spec.spacing[a]
-        shp = list(spec.shape)
-        shp[a] += 1
-        g = np.zeros(shp)
+        pad = [(0, 0)] * 3
+        pad[a] = (1, 1)
+        # one halo cell along a: the wrapped neighbour, or a copy of the boundary cell (fold:
+        # a zero difference across the boundary face)
+        pp = np.pad(p, pad, mode="wrap" if rules[2 * a] == "wrap" else "edge")
+        g = c2f_gradient(pp, a, spec.spacing[a])  # faces 0..n of p are entries 1..n+1 of g
         sl = [slice(None)] * 3
-        sl[a] = slice(1, spec.shape[a])
-        g[tuple(sl)] = np.diff(p, axis=a) / h
-        if per[a]:
-            first = [slice(None)] * 3
-            last = [slice(None)] * 3
-            first[a] = slice(0, 1)
-            last[a] = slice(spec.shape[a] - 1, spec.shape[a])
-            wrap = (p[tuple(first)] - p[tuple(last)]) / h
-            s0 = [slice(None)] * 3
-            s0[a] = slice(0, 1)
-            sn = [slice(None)] * 3
-            sn[a] = slice(spec.shape[a], spec.shape[a] + 1)
-            g[tuple(s0)] = wrap
-            g[tuple(sn)] = wrap
-        grads.append(g)
+        sl[a] = slice(1, spec.shape[a] + 2)
+        grads.append(np.ascontiguousarray(g[tuple(sl)]))
     return tuple(grads)
 
 
-def gradient_at_particles(grid, p, pos, periodic=None) -> np.ndarray:
+def gradient_at_particles(grid, p, pos, boundaries=None) -> np.ndarray:
     """grad p at the particles (n, 3): face differences (:func:`face_gradient`) interpolated
     like the velocity.  Exact for a pressure field linear in x, y, z (away from walls within
     half a cell, where the fold uses the first interior face's value - also exact for
     linear p)."""
-    return MappingPlan(grid, pos, periodic).gradient(p)
+    return MappingPlan(grid, pos, boundaries).gradient(p)

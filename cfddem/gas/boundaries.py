@@ -1,29 +1,34 @@
-"""Boundary conditions of the gas box, applied by filling halo (ghost) cells.
+"""Boundary conditions of the gas box: the one boundary model of cfddem, and the halo fills.
 
-One condition per side of the box: ``"x-", "x+", "y-", "y+", "z-", "z+"``.  Filling the
-halos makes every interior stencil branch-free.  With ``g`` the halo width, ``n`` the cell
-count along the side's normal direction and indices counted in the array (interior index
-``i`` is array index ``i+g``), the lower-side rules are (upper side mirrored):
+One condition per side of the box: ``"x-", "x+", "y-", "y+", "z-", "z+"``.  Each condition
+(a :class:`BC`) declares its rules once: the halo fills below, the gas solver, the
+particle-to-grid mapping and the momentum exchange read them (see :class:`BC` and
+docs/gas.md, "The boundary model").  Filling the halos makes every interior stencil
+branch-free.  With ``g`` the halo width, ``n`` the cell count along the side's normal
+direction and indices counted in the array (interior index ``i`` is array index ``i+g``),
+the lower-side fills are (upper side mirrored):
 
-normal component (the face field whose faces are parallel to the side, boundary face ``g``)
-    * prescribed (``NoSlip``, ``FreeSlip``: u_b = 0; ``Velocity``/``Inlet``/``LidCrossWind``:
-      u_b given): ``a[g] = u_b``, ``a[g-m] = 2 u_b - a[g+m]`` (odd reflection; exact for a
-      field linear in the normal direction);
-    * ``PressureOutlet``: the boundary face is an unknown; ``a[g-m] = a[g]`` (zero gradient);
-    * ``Periodic``: face ``n`` is face ``0``; ``a[g+n] = a[g]``, ``a[g-m] = a[g+n-m]``.
+normal component (the face field whose faces are parallel to the side, boundary face ``g``),
+by ``normal_rule``
+    * ``"prescribed"`` (``NoSlip``, ``FreeSlip``: u_b = 0; ``Velocity``/``Inlet``/
+      ``LidCrossWind``: u_b given): ``a[g] = u_b``, ``a[g-m] = 2 u_b - a[g+m]`` (odd
+      reflection; exact for a field linear in the normal direction);
+    * ``"solved"`` (``PressureOutlet``): the boundary face is an unknown; ``a[g-m] = a[g]``
+      (zero gradient);
+    * ``"periodic"``: face ``n`` is face ``0``; ``a[g+n] = a[g]``, ``a[g-m] = a[g+n-m]``.
 
 tangential components (centred in the normal direction; the boundary lies half a cell
-outside the first interior point)
-    * no-slip / prescribed: ``a[g-m] = 2 u_b - a[g+m-1]`` (the wall value is the mean of
-      the first interior and ghost values; second-order, exact for linear fields);
-    * free slip: ``a[g-m] = a[g+m-1]`` (zero normal gradient, zero shear stress);
-    * outlet: ``a[g-m] = a[g]`` (zero gradient);
-    * periodic: ``a[g-m] = a[g+n-m]``.
+outside the first interior point), by ``tangential_rule``
+    * ``"prescribed"``: ``a[g-m] = 2 u_b - a[g+m-1]`` (the wall value is the mean of the first
+      interior and ghost values; second-order, exact for linear fields);
+    * ``"slip"``: ``a[g-m] = a[g+m-1]`` (zero normal gradient, zero shear stress);
+    * ``"zero_gradient"``: ``a[g-m] = a[g]``;
+    * ``"periodic"``: ``a[g-m] = a[g+n-m]``.
 
-cell-centred pressure: zero normal gradient at prescribed-velocity sides (the projection
-never corrects those faces), ``p_ghost = 2 p_out - p_interior`` at an outlet (Dirichlet
-value ``p_out`` on the boundary face), wrap at periodic sides.  Porosity: zero gradient
-(wrap at periodic sides).
+cell-centred pressure, by ``pressure_rule``: ``"neumann"`` zero normal gradient (at
+prescribed normal faces: the projection never corrects them), ``"dirichlet"``
+``p_ghost = 2 p_b - p_interior`` (the value ``p_b`` of :meth:`BC.pressure` on the boundary
+face), ``"periodic"`` wrap.  Porosity: zero gradient (wrap at periodic sides).
 
 Halos are filled direction by direction (x, then y, then z) over the full extent of the
 other directions, so edges and corners take consistent values.
@@ -45,15 +50,95 @@ _COMPONENT_LOC = ("fcc", "cfc", "ccf")
 
 
 class BC:
-    """Base class of a side's boundary condition."""
+    """Base class of a side's boundary condition: what every part of the code needs to know
+    about a side, declared once here (docs/gas.md, "The boundary model").
+
+    A kind of boundary is a subclass that sets the five rules below (and overrides
+    :meth:`velocity` / :meth:`pressure` if it prescribes values); the gas halo fill
+    (:class:`BoundarySet`), the gas solver (updated faces, pressure equation, periodic faces),
+    the particle-to-grid mapping (:mod:`cfddem.coupling.mapping`) and the momentum exchange
+    (:mod:`cfddem.coupling.exchange`) read these rules and never the class or its ``kind``.
+
+    ``normal_rule``: the boundary face of the velocity component normal to the side:
+        ``"prescribed"`` (the value of :meth:`velocity`; not a gas unknown, the projection
+        never corrects it; odd reflection into the halo), ``"solved"`` (a gas unknown that the
+        momentum equation updates; zero-gradient halo beyond it; needs halo 2), ``"periodic"``
+        (face n is face 0).
+    ``tangential_rule``: the two tangential components in the halo: ``"prescribed"`` (the
+        side's value is the mean of ghost and first interior point: no-slip, moving wall,
+        inlet), ``"slip"`` (mirror image: zero normal gradient, no shear stress),
+        ``"zero_gradient"`` (copies of the first interior point: outflow), ``"periodic"``.
+    ``pressure_rule``: the cell-centred pressure: ``"neumann"`` (zero normal gradient in the
+        halo and in the pressure equation: a prescribed normal face), ``"dirichlet"`` (the
+        value of :meth:`pressure` on the boundary face: a solved normal face), ``"periodic"``.
+    ``particle_rule``: the particle-to-grid mapping across the side: ``"fold"`` (a particle
+        keeps its whole volume and force inside the box: weight on nodes beyond the first
+        interior node the mapping uses folds onto it, centres outside are clamped onto the
+        side), ``"wrap"`` (periodic: node n is node 0).
+    ``half_cell_source``: the momentum exchange's boundary half-cell (exchange step 5b): True
+        where the boundary face is not a gas unknown, so the half cell between the side and
+        the first interior face lies outside every gas control volume and the boundary
+        supplies its pressure force (to the particles in the first cell layer and, as an
+        explicit source, to the gas on the first interior face).
+
+    The porosity halo is zero-gradient on every side that is not periodic.
+    """
 
     kind = "base"
-    prescribes_velocity = True
+    normal_rule = "prescribed"
+    tangential_rule = "prescribed"
+    pressure_rule = "neumann"
+    particle_rule = "fold"
+    half_cell_source = True
+
+    @property
+    def prescribes_velocity(self) -> bool:
+        """Whether the side prescribes a velocity component (its :meth:`velocity` is read)."""
+        return self.normal_rule == "prescribed" or self.tangential_rule == "prescribed"
+
+    @property
+    def periodic(self) -> bool:
+        return self.normal_rule == "periodic"
 
     def velocity(self, side: str, x, y, z):
         """Prescribed velocity (u, v, w) at the boundary points (arrays broadcast together)."""
         zero = np.zeros(np.broadcast(x, y, z).shape)
         return zero, zero.copy(), zero.copy()
+
+    def pressure(self, side: str, x, y, z):
+        """Pressure on the boundary face at the points (``pressure_rule`` "dirichlet" only)."""
+        raise NotImplementedError(f"{type(self).__name__} prescribes no pressure")
+
+
+#: the allowed values of each rule; BoundarySet checks every BC against them
+RULES = {
+    "normal_rule": ("prescribed", "solved", "periodic"),
+    "tangential_rule": ("prescribed", "slip", "zero_gradient", "periodic"),
+    "pressure_rule": ("neumann", "dirichlet", "periodic"),
+    "particle_rule": ("fold", "wrap"),
+    "half_cell_source": (True, False),
+}
+
+
+def check_rules(side: str, bc: BC) -> None:
+    """CaseError unless bc's rules take allowed values and fit together: periodic in all of
+    them or in none; a solved normal face with a Dirichlet pressure, a prescribed one with a
+    Neumann pressure; the half-cell source exactly where the normal face is prescribed."""
+    key = f"gas.bcs.{side}"
+    for name, allowed in RULES.items():
+        if getattr(bc, name) not in allowed:
+            raise CaseError(key, f"{type(bc).__name__}.{name} = {getattr(bc, name)!r}; allowed: {allowed}")
+    per = bc.normal_rule == "periodic"
+    if (per != (bc.tangential_rule == "periodic") or per != (bc.pressure_rule == "periodic")
+            or per != (bc.particle_rule == "wrap")):
+        raise CaseError(key, f"{type(bc).__name__}: periodic must be the rule of all four fields or of none")
+    pairs = {"prescribed": "neumann", "solved": "dirichlet", "periodic": "periodic"}
+    if pairs[bc.normal_rule] != bc.pressure_rule:
+        raise CaseError(key, f"{type(bc).__name__}: a {bc.normal_rule} normal face needs pressure_rule "
+                        f"{pairs[bc.normal_rule]!r}, not {bc.pressure_rule!r}")
+    if bc.half_cell_source != (bc.normal_rule == "prescribed"):
+        raise CaseError(key, f"{type(bc).__name__}: half_cell_source must be True exactly where the normal "
+                        "face is prescribed")
 
 
 @dataclass(frozen=True)
@@ -68,6 +153,7 @@ class FreeSlip(BC):
     """Impermeable wall without shear stress: u.n = 0, d(u_t)/dn = 0."""
 
     kind = "freeslip"
+    tangential_rule = "slip"
 
 
 @dataclass(frozen=True)
@@ -128,11 +214,22 @@ class LidCrossWind(BC):
 @dataclass(frozen=True)
 class PressureOutlet(BC):
     """Constant-pressure outlet: p = p_out on the boundary face (a number or a function
-    ``f(x, y, z)``, e.g. hydrostatic), zero-gradient velocity."""
+    ``f(x, y, z)``, e.g. hydrostatic), zero-gradient velocity.
+
+    Particles near it are mapped as near a wall (``particle_rule = "fold"``): a particle within
+    half a cell of the outlet gives its weight to the last interior face, not to the outlet
+    face that the gas solves for, and a particle centre past the outlet is clamped onto it
+    (docs/gas.md, "The boundary model")."""
 
     p: float | Callable = 0.0
     kind = "outlet"
-    prescribes_velocity = False
+    normal_rule = "solved"
+    tangential_rule = "zero_gradient"
+    pressure_rule = "dirichlet"
+    half_cell_source = False
+
+    def pressure(self, side, x, y, z):
+        return self.p(x, y, z) if callable(self.p) else self.p
 
 
 @dataclass(frozen=True)
@@ -140,7 +237,11 @@ class Periodic(BC):
     """Periodic pair: both sides of the direction must be periodic."""
 
     kind = "periodic"
-    prescribes_velocity = False
+    normal_rule = "periodic"
+    tangential_rule = "periodic"
+    pressure_rule = "periodic"
+    particle_rule = "wrap"
+    half_cell_source = False
 
 
 def _sl(d: int, idx) -> tuple:
@@ -153,9 +254,15 @@ def _sl(d: int, idx) -> tuple:
 class BoundarySet:
     """The six boundary conditions of a grid, with their boundary values precomputed.
 
-    Attributes used by the solver: ``kinds[side]``, ``periodic[d]``, ``face_range[d]``
-    (first and one-past-last interior face index of component d that the momentum equation
-    updates), ``pressure_bc[side]`` in {"neumann", "dirichlet", "periodic"}.
+    Everything here is read from the rules each BC declares (:class:`BC`).  Attributes used
+    by the solver and the coupling: ``kinds[side]`` (names, for messages), ``periodic[d]``,
+    ``face_range[d]`` (first and one-past-last interior face index of component d that the
+    momentum equation updates: the boundary face is included where its ``normal_rule`` is
+    "solved"),
+    ``pressure_bc[side]`` in {"neumann", "dirichlet", "periodic"}, ``particle_rules``
+    (the six ``particle_rule`` values in the order of ``SIDES``, for the mapping) and
+    ``half_cell[d]`` (whether the lower and the upper side of axis d carry a boundary
+    half-cell, for the exchange).
     """
 
     grid: StaggeredGrid
@@ -172,13 +279,14 @@ class BoundarySet:
         for s, bc in self.bcs.items():
             if not isinstance(bc, BC):
                 raise CaseError(f"gas.bcs.{s}", f"not a boundary condition: {bc!r}")
+            check_rules(s, bc)
         self.kinds = {s: self.bcs[s].kind for s in SIDES}
         per = []
         for d in range(3):
-            lo, hi = self.kinds[SIDES[2 * d]], self.kinds[SIDES[2 * d + 1]]
-            if (lo == "periodic") != (hi == "periodic"):
+            lo, hi = self.bcs[SIDES[2 * d]].periodic, self.bcs[SIDES[2 * d + 1]].periodic
+            if lo != hi:
                 raise CaseError(f"gas.bcs.{SIDES[2 * d]}", "periodic must be set on both sides of a direction")
-            per.append(lo == "periodic")
+            per.append(lo)
         self.periodic = tuple(per)
         self.face_range = []
         for d in range(3):
@@ -187,14 +295,28 @@ class BoundarySet:
             if self.periodic[d]:
                 self.face_range.append((0, n))
             else:
-                lo = 0 if self.kinds[lo_side] == "outlet" else 1
-                hi = n + 1 if self.kinds[hi_side] == "outlet" else n
+                lo = 0 if self.bcs[lo_side].normal_rule == "solved" else 1
+                hi = n + 1 if self.bcs[hi_side].normal_rule == "solved" else n
                 self.face_range.append((lo, hi))
-        self.pressure_bc = {}
-        for s in SIDES:
-            k = self.kinds[s]
-            self.pressure_bc[s] = "periodic" if k == "periodic" else ("dirichlet" if k == "outlet" else "neumann")
+        self.pressure_bc = {s: self.bcs[s].pressure_rule for s in SIDES}
+        self.particle_rules = tuple(self.bcs[s].particle_rule for s in SIDES)
+        self.half_cell = tuple((self.bcs[SIDES[2 * d]].half_cell_source, self.bcs[SIDES[2 * d + 1]].half_cell_source)
+                               for d in range(3))
         self._precompute()
+
+    @property
+    def needs_wide_halo(self) -> bool:
+        """A solved boundary face (an outlet) needs halo 2: its momentum stencil reaches two
+        faces beyond it."""
+        return any(self.bcs[s].normal_rule == "solved" for s in SIDES)
+
+    def copy_periodic_faces(self, a: np.ndarray, c: int, offset: int) -> None:
+        """Face n := face 0 of the component-c face array ``a`` if axis c is periodic (the first
+        statement of the periodic fill; ``offset``: the array's halo width, 0 for an array of
+        interior faces).  Nothing on other axes."""
+        if self.periodic[c]:
+            n = self.grid.shape[c]
+            a[_sl(c, offset + n)] = a[_sl(c, offset)]
 
     @property
     def has_dirichlet_pressure(self) -> bool:
@@ -230,9 +352,9 @@ class BoundarySet:
                     shape = list(self.grid.array_shape(_COMPONENT_LOC[c]))
                     shape[d] = 1
                     self._ub[(s, c)] = np.ascontiguousarray(np.broadcast_to(vals, shape))
-            if bc.kind == "outlet":
+            if bc.pressure_rule == "dirichlet":
                 x, y, z = self._boundary_points(s, "ccc")
-                pv = bc.p(x, y, z) if callable(bc.p) else bc.p
+                pv = bc.pressure(s, x, y, z)
                 shape = list(self.grid.array_shape("ccc"))
                 shape[d] = 1
                 self._pout[s] = np.ascontiguousarray(np.broadcast_to(np.asarray(pv, dtype=float), shape))
@@ -338,14 +460,12 @@ class BoundarySet:
                     st.append((_sl(d, g + n - 1 + m), _sl(d, g - 1 + m), 0, 0.0))
             return st
         for side, lower in ((lo, True), (hi, False)):
-            kind = self.kinds[side]
-            ub = self._ub.get((side, c))
-            if ub is not None and kind == "freeslip" and c != d:
-                ub = None
+            bc = self.bcs[side]
             if c == d:  # normal component, boundary face at g (lower) or g+n (upper)
+                ub = self._ub.get((side, c))
                 b = g if lower else g + n
                 sgn = -1 if lower else 1
-                if kind == "outlet":
+                if bc.normal_rule == "solved":
                     for m in range(1, g + 1):
                         st.append((_sl(d, b + sgn * m), _sl(d, b), 0, 0.0))
                 else:
@@ -354,14 +474,16 @@ class BoundarySet:
                         st.append((_sl(d, slice(b + sgn * m, b + sgn * m + 1)),
                                    _sl(d, slice(b - sgn * m, b - sgn * m + 1)), 1, 2.0 * ub))
             else:  # tangential component, first interior point half a cell from the side
+                rule = bc.tangential_rule
+                ub = self._ub.get((side, c)) if rule == "prescribed" else None
                 for m in range(1, g + 1):
                     if lower:
                         gi, mi, fi = g - m, g + m - 1, g
                     else:
                         gi, mi, fi = g + n - 1 + m, g + n - m, g + n - 1
-                    if kind == "outlet":
+                    if rule == "zero_gradient":
                         st.append((_sl(d, gi), _sl(d, fi), 0, 0.0))
-                    elif kind == "freeslip":
+                    elif rule == "slip":
                         st.append((_sl(d, gi), _sl(d, mi), 0, 0.0))
                     else:
                         st.append((_sl(d, slice(gi, gi + 1)), _sl(d, slice(mi, mi + 1)), 1, 2.0 * ub))
@@ -380,7 +502,7 @@ class BoundarySet:
             for side, lower in ((SIDES[2 * d], True), (SIDES[2 * d + 1], False)):
                 for m in range(1, g + 1):
                     gi, mi = (g - m, g + m - 1) if lower else (g + n - 1 + m, g + n - m)
-                    if self.kinds[side] == "outlet":
+                    if self.bcs[side].pressure_rule == "dirichlet":
                         pb = 0.0 if homogeneous else self._pout[side]
                         st.append((_sl(d, slice(gi, gi + 1)), _sl(d, slice(mi, mi + 1)), 1, 2.0 * pb))
                     else:

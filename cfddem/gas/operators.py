@@ -1,27 +1,41 @@
-"""Tiny staggered-grid operators, named by where the result lives.
+"""Staggered-grid operators, named by where the result lives: written once here and used by
+the gas solver, the particle-to-grid mapping and the momentum exchange.
 
 Array conventions (see :mod:`cfddem.gas.grid`): a face array along direction d has one
 more entry along d than a centre array; face array index ``I`` lies between centre array
 indices ``I-1`` and ``I``; centre index ``i`` lies between face indices ``i`` and ``i+1``.
-All kernels write only the entries whose stencil lies inside the input array, and leave
-the rest of ``out`` untouched, so they can run on arrays with halos.
 
-=======================  =====================================================  =========
-function                 formula                                                result at
-=======================  =====================================================  =========
-``c2f_interp(a,d,out)``  ``(a[I-1] + a[I]) / 2``                                faces d
-``c2f_diff(a,d,h,out)``  ``(a[I] - a[I-1]) / h``                                faces d
-``f2c_interp(f,d,out)``  ``(f[i] + f[i+1]) / 2``                                centres
-``f2c_diff(f,d,h,out)``  ``(f[i+1] - f[i]) / h``                                centres
-``divergence``           ``sum_d (f_d[i+1] - f_d[i]) / h_d``                    centres
-``porous_divergence``    ``sum_d (e_f f_d)[i+1] - (e_f f_d)[i]) / h_d``,
-                         ``e_f = (e[I-1] + e[I]) / 2``                          centres
-=======================  =====================================================  =========
+Point operators (compiled, inlined into the kernels that call them; the direction is the
+unit vector ``(di, dj, dk)``, the indices are signed array indices and are cast to unsigned
+where used, so that the calling loops vectorise):
 
-Second-order accurate on uniform grids and exact for fields linear in the direction of the
-operation.  Compiled with :func:`cfddem._jit.parallel_kernel` (one ``prange`` loop over the
-first array axis; every iteration writes its own entries, so the result does not depend
-on the thread count).
+===============================================  ====================================  ======
+function                                         formula                               at
+===============================================  ====================================  ======
+``c2f_interp_at(a, i, j, k, di, dj, dk)``        ``(a[I-1] + a[I]) / 2``               face I
+``c2f_diff_at(a, i, j, k, di, dj, dk)``          ``a[I] - a[I-1]``                     face I
+``c2f_grad_at(a, i, j, k, di, dj, dk, h)``       ``(a[I] - a[I-1]) / h``               face I
+``f2c_interp_at(f, i, j, k, di, dj, dk)``        ``(f[i] + f[i+1]) / 2``               centre i
+``f2c_diff_at(f, i, j, k, di, dj, dk)``          ``f[i+1] - f[i]``                     centre i
+``porous_divergence_at(u, v, w, e, i, j, k, ..)`` ``sum_d ((e_f f_d)[i+1] - (e_f f_d)[i]) / h_d``,
+                                                 ``e_f = c2f_interp_at(e)``            centre i
+===============================================  ====================================  ======
+
+``c2f_grad_at`` is the face gradient of a centre field (the pressure gradient of the gas,
+the mapping and the exchange); ``c2f_interp_at`` the face value of a centre field (the face
+porosity ``eps_f`` everywhere).  The projection kernels fold 1/h into factors they
+precompute (the predictor multiplies the face difference by ``1/h``, the correction by
+``dt/(rho h)``) and so call ``c2f_diff_at``: dividing by h there instead would change their
+results in the last bit.
+
+Array operators (fields with halos, :class:`~cfddem.gas.grid.Field`): ``interp_to_face``,
+``grad_to_face``, ``gradient``, ``interp_to_centre``, ``diff_to_centre``, ``divergence``,
+``porous_divergence``, and :func:`c2f_gradient` on plain arrays.  Their kernels write only
+the entries whose stencil lies inside the input array, and leave the rest of ``out``
+untouched, so they can run on arrays with halos.  Second-order accurate on uniform grids and
+exact for fields linear in the direction of the operation.  Compiled with
+:func:`cfddem._jit.parallel_kernel` (one ``prange`` loop over the first array axis; every
+iteration writes its own entries, so the result does not depend on the thread count).
 """
 
 from __future__ import annotations
@@ -38,60 +52,97 @@ def _offsets(d: int):
     return (1 if d == 0 else 0, 1 if d == 1 else 0, 1 if d == 2 else 0)
 
 
+# ---- point operators ------------------------------------------------------------------
+@kernel(inline="always")
+def c2f_interp_at(a, i, j, k, di, dj, dk):
+    """Centre field a at the face (i, j, k) normal to (di, dj, dk): ``(a[I-1] + a[I]) / 2``."""
+    return 0.5 * (a[U(i - di), U(j - dj), U(k - dk)] + a[U(i), U(j), U(k)])
+
+
+@kernel(inline="always")
+def c2f_diff_at(a, i, j, k, di, dj, dk):
+    """Difference of the centre field a across the face (i, j, k): ``a[I] - a[I-1]``."""
+    return a[U(i), U(j), U(k)] - a[U(i - di), U(j - dj), U(k - dk)]
+
+
+@kernel(inline="always")
+def c2f_grad_at(a, i, j, k, di, dj, dk, h):
+    """Derivative of the centre field a along (di, dj, dk) at the face (i, j, k), spacing h:
+    ``(a[I] - a[I-1]) / h``."""
+    return c2f_diff_at(a, i, j, k, di, dj, dk) / h
+
+
+@kernel(inline="always")
+def f2c_interp_at(f, i, j, k, di, dj, dk):
+    """Face field f (normal to (di, dj, dk)) at the centre (i, j, k): ``(f[i] + f[i+1]) / 2``."""
+    return 0.5 * (f[U(i), U(j), U(k)] + f[U(i + di), U(j + dj), U(k + dk)])
+
+
+@kernel(inline="always")
+def f2c_diff_at(f, i, j, k, di, dj, dk):
+    """Difference of the face field f across the centre (i, j, k): ``f[i+1] - f[i]``."""
+    return f[U(i + di), U(j + dj), U(k + dk)] - f[U(i), U(j), U(k)]
+
+
+@kernel(inline="always")
+def porous_divergence_at(u, v, w, eps, i, j, k, rdx, rdy, rdz):
+    """div(e_f u) at the cell centre (i, j, k) (array indices, at least 1: a halo cell on
+    each side): the six face fluxes with the face porosity e_f = :func:`c2f_interp_at` of the
+    two cells beside the face.  Indices are cast to unsigned where used (no negative-index
+    test, so that the loops calling this vectorise; the same values)."""
+    iu, ju, ku = U(i), U(j), U(k)
+    fxp = c2f_interp_at(eps, i + 1, j, k, 1, 0, 0) * u[U(i + 1), ju, ku]
+    fxm = c2f_interp_at(eps, i, j, k, 1, 0, 0) * u[iu, ju, ku]
+    fyp = c2f_interp_at(eps, i, j + 1, k, 0, 1, 0) * v[iu, U(j + 1), ku]
+    fym = c2f_interp_at(eps, i, j, k, 0, 1, 0) * v[iu, ju, ku]
+    fzp = c2f_interp_at(eps, i, j, k + 1, 0, 0, 1) * w[iu, ju, U(k + 1)]
+    fzm = c2f_interp_at(eps, i, j, k, 0, 0, 1) * w[iu, ju, ku]
+    return (fxp - fxm) * rdx + (fyp - fym) * rdy + (fzp - fzm) * rdz
+
+
+# ---- array kernels --------------------------------------------------------------------
 @parallel_kernel
-def _c2f(a, di, dj, dk, scale, mode, out):
-    # mode 0: interpolation 0.5*(a[I-1] + a[I]); mode 1: difference (a[I] - a[I-1]) * scale
+def _c2f_interp(a, di, dj, dk, out):
+    """out[I] = c2f_interp_at(a, I) wherever face I has both centres in a."""
     n0, n1, n2 = a.shape
-    for i in prange(di, n0):
+    for iu in prange(di, n0):
+        i = np.int64(iu)  # (a prange index may be unsigned; mixed with signed ints it types as float)
         for j in range(dj, n1):
             for k in range(dk, n2):
-                lo = a[i - di, j - dj, k - dk]
-                hi = a[i, j, k]
-                if mode == 0:
-                    out[i, j, k] = 0.5 * (lo + hi)
-                else:
-                    out[i, j, k] = (hi - lo) * scale
+                out[i, j, k] = c2f_interp_at(a, i, j, k, di, dj, dk)
+
+
+@parallel_kernel
+def _c2f_grad(a, di, dj, dk, h, out):
+    """out[I] = c2f_grad_at(a, I, h) wherever face I has both centres in a."""
+    n0, n1, n2 = a.shape
+    for iu in prange(di, n0):
+        i = np.int64(iu)
+        for j in range(dj, n1):
+            for k in range(dk, n2):
+                out[i, j, k] = c2f_grad_at(a, i, j, k, di, dj, dk, h)
 
 
 @parallel_kernel
 def _f2c(f, di, dj, dk, scale, mode, out):
-    # mode 0: 0.5*(f[i] + f[i+1]); mode 1: (f[i+1] - f[i]) * scale
+    # mode 0: f2c_interp_at; mode 1: f2c_diff_at * scale
     n0, n1, n2 = out.shape
-    for i in prange(n0):
+    for iu in prange(n0):
+        i = np.int64(iu)
         for j in range(n1):
             for k in range(n2):
-                lo = f[i, j, k]
-                hi = f[i + di, j + dj, k + dk]
                 if mode == 0:
-                    out[i, j, k] = 0.5 * (lo + hi)
+                    out[i, j, k] = f2c_interp_at(f, i, j, k, di, dj, dk)
                 else:
-                    out[i, j, k] = (hi - lo) * scale
-
-
-@kernel
-def porous_divergence_at(u, v, w, eps, i, j, k, rdx, rdy, rdz):
-    """div(e_f u) at the cell centre (i, j, k) (array indices, at least 1: a halo cell on
-    each side): the six face fluxes with the face porosity e_f the arithmetic mean of the two
-    cells beside the face.  Indices are cast to unsigned where used (no negative-index test,
-    so that the loops calling this vectorise; the same values)."""
-    im, jm, km = U(i - 1), U(j - 1), U(k - 1)
-    ip, jp, kp = U(i + 1), U(j + 1), U(k + 1)
-    iu, ju, ku = U(i), U(j), U(k)
-    e = eps[iu, ju, ku]
-    fxp = 0.5 * (e + eps[ip, ju, ku]) * u[ip, ju, ku]
-    fxm = 0.5 * (eps[im, ju, ku] + e) * u[iu, ju, ku]
-    fyp = 0.5 * (e + eps[iu, jp, ku]) * v[iu, jp, ku]
-    fym = 0.5 * (eps[iu, jm, ku] + e) * v[iu, ju, ku]
-    fzp = 0.5 * (e + eps[iu, ju, kp]) * w[iu, ju, kp]
-    fzm = 0.5 * (eps[iu, ju, km] + e) * w[iu, ju, ku]
-    return (fxp - fxm) * rdx + (fyp - fym) * rdy + (fzp - fzm) * rdz
+                    out[i, j, k] = f2c_diff_at(f, i, j, k, di, dj, dk) * scale
 
 
 @parallel_kernel
 def porous_divergence_kernel(u, v, w, eps, rdx, rdy, rdz, g, nx, ny, nz, out):
     """out[c] = div(e_f u) at interior centres (array indices g..g+n-1); e_f arithmetic mean
     (:func:`porous_divergence_at`)."""
-    for i in prange(g, g + nx):
+    for iu in prange(g, g + nx):
+        i = np.int64(iu)
         for j in range(g, g + ny):
             for k in range(g, g + nz):
                 out[i, j, k] = porous_divergence_at(u, v, w, eps, i, j, k, rdx, rdy, rdz)
@@ -101,11 +152,28 @@ def porous_divergence_kernel(u, v, w, eps, rdx, rdy, rdz, g, nx, ny, nz, out):
 def divergence_kernel(u, v, w, rdx, rdy, rdz, out):
     """out[i,j,k] = div u at every centre whose faces lie inside the arrays."""
     n0, n1, n2 = out.shape
-    for i in prange(n0):
+    for iu in prange(n0):
+        i = np.int64(iu)
         for j in range(n1):
             for k in range(n2):
-                out[i, j, k] = ((u[i + 1, j, k] - u[i, j, k]) * rdx + (v[i, j + 1, k] - v[i, j, k]) * rdy
-                                + (w[i, j, k + 1] - w[i, j, k]) * rdz)
+                out[i, j, k] = (f2c_diff_at(u, i, j, k, 1, 0, 0) * rdx + f2c_diff_at(v, i, j, k, 0, 1, 0) * rdy
+                                + f2c_diff_at(w, i, j, k, 0, 0, 1) * rdz)
+
+
+def c2f_gradient(a: np.ndarray, d: int, h: float, out: np.ndarray | None = None) -> np.ndarray:
+    """The face gradient along d of a centre array a (any halo), :func:`c2f_grad_at` on every
+    face with both centres in a: ``out`` has the shape of a plus one along d, and entry I
+    along d (1 <= I < a.shape[d]) is ``(a[I] - a[I-1]) / h``; entries 0 and a.shape[d] are
+    left as they are (zero in a new array)."""
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    shape = list(a.shape)
+    shape[d] += 1
+    if out is None:
+        out = np.zeros(shape)
+    elif out.shape != tuple(shape):
+        raise ValueError(f"c2f_gradient: out has shape {out.shape}, expected {tuple(shape)}")
+    _c2f_grad(a, *_offsets(d), float(h), _view_c2f(out, d))
+    return out
 
 
 def _face_loc(d: int) -> str:
@@ -121,7 +189,7 @@ def interp_to_face(a: Field, d: int) -> Field:
     """Centre field -> faces normal to d, (a[I-1] + a[I]) / 2."""
     _require(a, "ccc", "interp_to_face")
     out = a.grid.zeros(_face_loc(d))
-    _c2f(a.data, *_offsets(d), 1.0, 0, _view_c2f(out.data, d))
+    _c2f_interp(a.data, *_offsets(d), _view_c2f(out.data, d))
     return out
 
 
@@ -136,7 +204,7 @@ def grad_to_face(a: Field, d: int) -> Field:
     """Centre field -> derivative along d on the faces normal to d, (a[I] - a[I-1]) / h."""
     _require(a, "ccc", "grad_to_face")
     out = a.grid.zeros(_face_loc(d))
-    _c2f(a.data, *_offsets(d), 1.0 / a.grid.spacing[d], 1, _view_c2f(out.data, d))
+    c2f_gradient(a.data, d, a.grid.spacing[d], out.data)
     return out
 
 

@@ -26,13 +26,13 @@ import numpy as np
 from cfddem._jit import kernel, parallel_kernel, prange  # noqa: I001
 from numba import uint64 as U
 
-from cfddem.gas.operators import porous_divergence_at
+from cfddem.gas.operators import c2f_diff_at, c2f_interp_at, porous_divergence_at
 
 
 @kernel(inline="always")
 def _coef_at(en, K, dt, irho, i, j, k, ia, ja, ka, di, dj, dk):
     """(eps_f, eps_f + dt K / rho) of the face (i, j, k) (array indices ia, ja, ka with halos)."""
-    ef = 0.5 * (en[U(ia - di), U(ja - dj), U(ka - dk)] + en[U(ia), U(ja), U(ka)])
+    ef = c2f_interp_at(en, ia, ja, ka, di, dj, dk)
     return ef, ef + dt * K[U(i), U(j), U(k)] * irho
 
 
@@ -72,7 +72,7 @@ def predictor_kernel(u, en, p, rhs, S, K, Up, dt, rho, rh, g, di, dj, dk, lo, hi
                 ef, d = _coef_at(en, K, dt, irho, i, j, k, ia, ja, ka, di, dj, dk)
                 coef[U(i), U(j), U(k)] = ef * ef / d
                 ratio[U(i), U(j), U(k)] = ef / d
-                gradp = (p[U(ia), U(ja), U(ka)] - p[U(ia - di), U(ja - dj), U(ka - dk)]) * rh
+                gradp = c2f_diff_at(p, ia, ja, ka, di, dj, dk) * rh  # (1/h folded into rh: operators.py)
                 num = ef * u[U(ia), U(ja), U(ka)] + dt * (rhs[U(ia), U(ja), U(ka)] - ef * gradp * irho)
                 num += dt * S[U(i), U(j), U(k)] * irho
                 num += dt * K[U(i), U(j), U(k)] * Up[U(i), U(j), U(k)] * irho
@@ -97,8 +97,7 @@ def correction_kernel(u, phi, ratio, fac, g, di, dj, dk, lo, hi):
         for j in range(j0, j1):
             for k in range(k0, k1):
                 ia, ja, ka = g + i, g + j, g + k
-                u[U(ia), U(ja), U(ka)] -= fac * ratio[U(i), U(j), U(k)] * (
-                    phi[U(ia), U(ja), U(ka)] - phi[U(ia - di), U(ja - dj), U(ka - dk)])
+                u[U(ia), U(ja), U(ka)] -= fac * ratio[U(i), U(j), U(k)] * c2f_diff_at(phi, ia, ja, ka, di, dj, dk)
 
 
 @kernel

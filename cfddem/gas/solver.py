@@ -41,6 +41,7 @@ from cfddem.gas.boundaries import BoundarySet
 from cfddem.gas.grid import Field, StaggeredGrid
 from cfddem.gas.momentum import momentum_rhs, viscous_laplacian
 from cfddem.gas.multigrid import MGPressureSolver
+from cfddem.gas.operators import interp_to_centre
 from cfddem.gas.projection import (correction_kernel, local_advective_rate_kernel, porosity_copy_kernel,
                                    predictor_kernel, pressure_rhs_kernel, step_diagnostics_kernel)
 from cfddem.gas.pressure import PressureSolver
@@ -133,7 +134,7 @@ class GasSolver:
         self.defect_tol = float(defect_tol)
         self.grid = grid
         self.bc = BoundarySet(grid, bcs)
-        if grid.halo < 2 and (advection == "tvd" or any(k == "outlet" for k in self.bc.kinds.values())):
+        if grid.halo < 2 and (advection == "tvd" or self.bc.needs_wide_halo):
             raise CaseError("gas.grid.halo", "TVD advection and pressure outlets need halo = 2")
         self.rho = float(rho)
         self.mu = float(mu)
@@ -307,21 +308,11 @@ class GasSolver:
         # the predictor did not write is face n of a periodic component (= face 0); the
         # halos are filled after the correction
         for c in range(3):
-            if self.bc.periodic[c]:
-                s_n = [slice(None)] * 3
-                s_0 = [slice(None)] * 3
-                s_n[c] = g + grid.shape[c]
-                s_0[c] = g
-                vel[c][tuple(s_n)] = vel[c][tuple(s_0)]
+            self.bc.copy_periodic_faces(vel[c], c, g)
         # --- 2. pressure increment --------------------------------------------------------
         coefs = self._coef
         for c in range(3):
-            if self.bc.periodic[c]:  # face n is face 0
-                s_n = [slice(None)] * 3
-                s_0 = [slice(None)] * 3
-                s_n[c] = -1
-                s_0[c] = 0
-                coefs[c][tuple(s_n)] = coefs[c][tuple(s_0)]
+            self.bc.copy_periodic_faces(coefs[c], c, 0)
         # "mg": with drag the coefficients change at every step, so no comparison with the
         # last set-up's (it skips nothing and its copy costs memory traffic)
         self.psolver.set_coefficients(*coefs, **({"compare": K is None} if self.pressure_solver == "mg" else {}))
@@ -473,13 +464,9 @@ class GasSolver:
     # --- output and diagnostics ---------------------------------------------------------
     def cell_centred_velocity(self) -> np.ndarray:
         """Velocity averaged from the faces to the cell centres, shape (nx, ny, nz, 3)."""
-        g = self.grid.halo
-        nx, ny, nz = self.grid.shape
-        out = np.empty((nx, ny, nz, 3))
-        u, v, w = self.u.data, self.v.data, self.w.data
-        out[..., 0] = 0.5 * (u[g:g + nx, g:g + ny, g:g + nz] + u[g + 1:g + nx + 1, g:g + ny, g:g + nz])
-        out[..., 1] = 0.5 * (v[g:g + nx, g:g + ny, g:g + nz] + v[g:g + nx, g + 1:g + ny + 1, g:g + nz])
-        out[..., 2] = 0.5 * (w[g:g + nx, g:g + ny, g:g + nz] + w[g:g + nx, g:g + ny, g + 1:g + nz + 1])
+        out = np.empty(self.grid.shape + (3,))
+        for c, f in enumerate(self.velocity):
+            out[..., c] = interp_to_centre(f, c).interior  # (f[i] + f[i+1]) / 2
         return out
 
     def divergence_residual(self) -> float:
