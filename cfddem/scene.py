@@ -12,6 +12,7 @@ import numpy as np
 
 from .config import Case
 from .errors import CaseError
+from .particles.contact import contact_keys
 
 
 def gravity_vector(case: Case) -> np.ndarray:
@@ -40,7 +41,7 @@ class WallSpec:
     normal: np.ndarray
     u_axis: np.ndarray | None = None
     half_extents: tuple[float, float] | None = None
-    params: dict | None = None  # k_n, e_n, e_t, mu, mu_r (linear) or E, nu, e, mu, mu_r (hertz_mindlin)
+    params: dict | None = None  # contact keys of the law (cfddem.particles.contact), e.g. k_n, e_n, e_t, mu, mu_r
     inside: bool = True  # cylinder: particles inside the ring
 
     def quads(self, size: float = 1.0, segments: int = 32) -> list[np.ndarray]:
@@ -114,7 +115,7 @@ def wall_specs(case: Case) -> list[WallSpec]:
 
         walls.extend(silo_walls(case))
     for i, w in enumerate(geo.walls):
-        params = {k: float(w[k]) for k in ("k_n", "e_n", "e_t", "mu", "mu_r", "E", "nu", "e") if k in w}
+        params = {k: float(w[k]) for k in contact_keys() if k in w}
         if w["type"] == "cylinder":
             walls.append(WallSpec(w.get("name", f"wall{i}"), "cylinder", np.array(w["point"], float),
                                   np.array(w["axis"], float), None,
