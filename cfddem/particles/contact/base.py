@@ -1,6 +1,7 @@
 """What every contact law shares (physics.md §1): the parameter row the kernels receive, the
-description of a case key, the friction keys mu and mu_r, the base class, and the two compiled
-pieces that do not depend on the law (tangential-history projection, rolling-friction torque).
+description of a case key, the friction keys mu and mu_r, the base class, and the compiled
+pieces that do not depend on the law (tangential-history projection, normal/tangential split of
+the relative velocity, Coulomb limit, rolling-friction torque).
 
 Parameter row (float64, length ``NPARAM``), one per contact table (particle-particle, each wall):
 
@@ -160,6 +161,24 @@ def project_history(hx, hy, hz, nx, ny, nz):
         return 0.0, 0.0, 0.0
     s = math.sqrt(h2 / p2)
     return px * s, py * s, pz * s
+
+
+@kernel(inline="always")
+def split_velocity(vx, vy, vz, nx, ny, nz):
+    """(v_n, v_t (3)): v_n = v.n and the tangential part v_t = v - v_n n."""
+    vn = vx * nx + vy * ny + vz * nz
+    return vn, vx - vn * nx, vy - vn * ny, vz - vn * nz
+
+
+@kernel(inline="always")
+def coulomb_limit(ftx, fty, ftz, fnabs, mu):
+    """Coulomb limit: F_t scaled down to mu |F_n| when longer.  Returns (F_t (3), sliding)."""
+    ft2 = ftx * ftx + fty * fty + ftz * ftz
+    flim = mu * fnabs
+    if ft2 > flim * flim:
+        s = flim / math.sqrt(ft2)
+        return ftx * s, fty * s, ftz * s, True
+    return ftx, fty, ftz, False
 
 
 @kernel(inline="always")

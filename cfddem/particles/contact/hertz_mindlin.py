@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 from cfddem._jit import kernel
 from cfddem.errors import CaseError
-from cfddem.particles.contact.base import FRICTION_KEYS, INF, ContactLaw, LawKey
+from cfddem.particles.contact.base import FRICTION_KEYS, INF, ContactLaw, LawKey, coulomb_limit, split_velocity
 
 _E = LawKey("E", "Pa", "hertz_mindlin: Young's modulus (DEM practice: a reduced value, glass is 6.3e10)",
             "Young's modulus (hertz_mindlin)", 5e7, lo=0.0, lo_open=True, hi=INF, hi_open=True)
@@ -55,10 +55,7 @@ def hertz_mindlin_force(estar, cd, gstar, cd_t, mu, meff, reff, dn, nx, ny, nz, 
         |F_s| > mu |F_n|:  F_t = mu |F_n| F_s/|F_s|,  d_t <- -F_t / S_t   (sliding, no damping)
         else:              F_t = F_s - c sqrt(S_t m*) v_t
     """
-    vn = vx * nx + vy * ny + vz * nz
-    vtx = vx - vn * nx
-    vty = vy - vn * ny
-    vtz = vz - vn * nz
+    vn, vtx, vty, vtz = split_velocity(vx, vy, vz, nx, ny, nz)
     q = math.sqrt(reff * dn)
     sn = 2.0 * estar * q
     fn = -(4.0 / 3.0) * estar * q * dn - cd * math.sqrt(sn * meff) * vn
@@ -66,17 +63,9 @@ def hertz_mindlin_force(estar, cd, gstar, cd_t, mu, meff, reff, dn, nx, ny, nz, 
     hx += vtx * dt_hist
     hy += vty * dt_hist
     hz += vtz * dt_hist
-    ftx = -st * hx
-    fty = -st * hy
-    ftz = -st * hz
-    ft2 = ftx * ftx + fty * fty + ftz * ftz
     fnabs = abs(fn)
-    flim = mu * fnabs
-    if ft2 > flim * flim:
-        s = flim / math.sqrt(ft2)
-        ftx *= s
-        fty *= s
-        ftz *= s
+    ftx, fty, ftz, sliding = coulomb_limit(-st * hx, -st * hy, -st * hz, fnabs, mu)
+    if sliding:
         hx = -ftx / st
         hy = -fty / st
         hz = -ftz / st

@@ -23,7 +23,7 @@ import math
 from dataclasses import dataclass
 
 from cfddem._jit import kernel
-from cfddem.particles.contact.base import FRICTION_KEYS, INF, ContactLaw, LawKey
+from cfddem.particles.contact.base import FRICTION_KEYS, INF, ContactLaw, LawKey, coulomb_limit, split_velocity
 
 LINEAR_KEYS = (
     LawKey("k_n", "N/m", "normal spring stiffness of the linear spring-dashpot law", "normal stiffness", 1000.0,
@@ -54,31 +54,20 @@ def linear_force(kn, cn, kt, ct, mu, meff, reff, dn, nx, ny, nz, vx, vy, vz, hx,
     The normal force is not clipped at zero (so that the contact lasts exactly t_c and restitutes
     e_n, as derived).  Returns (F on a (3), F_t (3), new d_t (3), |F_n|).
     """
-    vn = vx * nx + vy * ny + vz * nz
-    vtx = vx - vn * nx
-    vty = vy - vn * ny
-    vtz = vz - vn * nz
+    vn, vtx, vty, vtz = split_velocity(vx, vy, vz, nx, ny, nz)
     eta_n = cn * math.sqrt(meff * kn)
     fn = -kn * dn - eta_n * vn
     hx += vtx * dt_hist
     hy += vty * dt_hist
     hz += vtz * dt_hist
     eta_t = ct * math.sqrt(meff * kt)
-    ftx = -kt * hx - eta_t * vtx
-    fty = -kt * hy - eta_t * vty
-    ftz = -kt * hz - eta_t * vtz
-    ft2 = ftx * ftx + fty * fty + ftz * ftz
     fnabs = abs(fn)
-    flim = mu * fnabs
-    if ft2 > flim * flim:
-        s = flim / math.sqrt(ft2)
-        ftx *= s
-        fty *= s
-        ftz *= s
-        if kt > 0.0:
-            hx = -(ftx + eta_t * vtx) / kt
-            hy = -(fty + eta_t * vty) / kt
-            hz = -(ftz + eta_t * vtz) / kt
+    ftx, fty, ftz, sliding = coulomb_limit(-kt * hx - eta_t * vtx, -kt * hy - eta_t * vty, -kt * hz - eta_t * vtz,
+                                           fnabs, mu)
+    if sliding and kt > 0.0:
+        hx = -(ftx + eta_t * vtx) / kt
+        hy = -(fty + eta_t * vty) / kt
+        hz = -(ftz + eta_t * vtz) / kt
     return (fn * nx + ftx, fn * ny + fty, fn * nz + ftz, ftx, fty, ftz, hx, hy, hz, fnabs)
 
 
