@@ -23,6 +23,7 @@ from typing import Any
 
 from .coupling.drag import CLOSURES, DEFAULT_CLOSURE
 from .errors import CaseError
+from .particles.contact import CONTACT_LAWS, DEFAULT_LAW, check_contact_values, check_docs, contact_keys
 from .scenes import DEFAULT_SCENE, SCENE_TYPES, scene_class, scene_docs, scene_schemas
 from .schema import Key
 from .schema import nonneg as _nonneg
@@ -35,16 +36,20 @@ INF = float("inf")
 # --------------------------------------------------------------------------------------------
 # schema
 # --------------------------------------------------------------------------------------------
-def _contact_section(mu_default: float, e_n_default: float) -> dict:
+def _contact_section() -> dict:
+    """The [contact] schema from the registered contact laws (cfddem/particles/contact/):
+    ``model`` and the keys of every law in ``particle_particle`` and ``particle_wall``."""
+
+    def table(wall: bool) -> dict:
+        return {k.name: Key("float", k.default_for(wall), k.unit, k.doc, lo=k.lo, hi=k.hi, lo_open=k.lo_open,
+                            hi_open=k.hi_open)
+                for k in contact_keys().values()}
+
+    laws = " or ".join(law.model_doc() for law in CONTACT_LAWS.values())
     return {
-        "k_n": _pos(1000.0, "N/m", "normal spring stiffness of the linear spring-dashpot law"),
-        "e_n": _f(e_n_default, "-", "normal coefficient of restitution", lo=0.0, lo_open=True, hi=1.0),
-        "e_t": _f(0.33, "-", "tangential restitution of a sticking collision", lo=0.0, lo_open=True, hi=1.0),
-        "mu": _nonneg(mu_default, "-", "Coulomb friction coefficient"),
-        "mu_r": _nonneg(0.0, "-", "rolling friction coefficient (constant directional torque)"),
-        "E": _pos(5e7, "Pa", "hertz_mindlin: Young's modulus (DEM practice: a reduced value, glass is 6.3e10)"),
-        "nu": _f(0.25, "-", "hertz_mindlin: Poisson ratio", lo=-1.0, lo_open=True, hi=0.5),
-        "e": _f(e_n_default, "-", "hertz_mindlin: coefficient of restitution", lo=0.0, lo_open=True, hi=1.0),
+        "model": Key("str", DEFAULT_LAW, "-", f"contact law: {laws}", choices=tuple(CONTACT_LAWS)),
+        "particle_particle": table(False),
+        "particle_wall": table(True),
     }
 
 
@@ -113,18 +118,13 @@ SCHEMA: dict[str, dict] = {
                              "diameter = 0.003; the spheres must overlap or touch (one rigid body); mass and inertia "
                              "of their union", length=4),
     },
-    "contact": {
-        "model": Key("str", "linear", "-", "contact law: 'linear' spring-dashpot (keys k_n, e_n, e_t, mu, mu_r) or "
-                     "'hertz_mindlin' (keys E, nu, e, mu, mu_r; physics.md §1.2)", choices=("linear", "hertz_mindlin")),
-        "particle_particle": _contact_section(0.12, 0.97),
-        "particle_wall": _contact_section(0.22, 0.95),
-    },
+    "contact": _contact_section(),
     "geometry": {
         "type": Key("str", DEFAULT_SCENE, "-", "the scene (cfddem/scenes/): " + scene_docs(), choices=SCENE_TYPES),
         "walls": Key("tables", [], "-", "extra walls: [[geometry.walls]] with type = 'plane' (point, normal) or "
                      "'rectangle' (point = centre, normal, u_axis, half_extents = [a, b]) or 'cylinder' (the inside of a ring: "
                      "point = centre, axis, radius, half_height, optional inside = false for the outer surface); "
-                     "optional contact keys mu, mu_r, e_n, e_t, k_n (linear) or E, nu, e (hertz_mindlin)"),
+                     "optional contact keys: any key of [contact.particle_wall] (the contact law's), for this wall"),
     },
     "exit": {
         "lost_margin": _pos(0.5, "m", "particles farther than this outside the walls' bounding box are removed as lost"),
@@ -446,8 +446,8 @@ def _suggest_choice(v: str, choices) -> str:
 # --------------------------------------------------------------------------------------------
 # consistency of the whole case
 # --------------------------------------------------------------------------------------------
-_WALL_KEYS = {"type", "point", "normal", "u_axis", "half_extents", "mu", "mu_r", "e_n", "e_t", "k_n", "name",
-              "E", "nu", "e", "axis", "radius", "half_height", "inside"}
+_WALL_KEYS = {"type", "point", "normal", "u_axis", "half_extents", "name", "axis", "radius", "half_height",
+              "inside"} | set(contact_keys())  # geometry.walls entries: geometry and the contact-law keys
 _INITIAL_KEYS = {"pos", "vel", "omega", "radius"}
 
 
@@ -499,20 +499,7 @@ def _check_consistency(r: dict, case_dir: Path) -> None:
             he = _vec(f"{key}.half_extents", w.get("half_extents"), 2)
             if min(he) <= 0:
                 raise CaseError(f"{key}.half_extents", "must be positive")
-        for k in ("mu", "mu_r"):
-            if k in w and _as_float(f"{key}.{k}", w[k]) < 0:
-                raise CaseError(f"{key}.{k}", "must be >= 0")
-        for k in ("e_n", "e_t"):
-            if k in w and not (0 < _as_float(f"{key}.{k}", w[k]) <= 1):
-                raise CaseError(f"{key}.{k}", "must be in (0, 1]")
-        if "k_n" in w and _as_float(f"{key}.k_n", w["k_n"]) <= 0:
-            raise CaseError(f"{key}.k_n", "must be positive")
-        if "E" in w and not (0 < _as_float(f"{key}.E", w["E"]) < INF):
-            raise CaseError(f"{key}.E", "Young's modulus must be positive (Pa)")
-        if "nu" in w and not (-1 < _as_float(f"{key}.nu", w["nu"]) <= 0.5):
-            raise CaseError(f"{key}.nu", "Poisson ratio must be in (-1, 0.5]")
-        if "e" in w and not (0 < _as_float(f"{key}.e", w["e"]) <= 1):
-            raise CaseError(f"{key}.e", "must be in (0, 1]")
+        check_contact_values(key, {k: _as_float(f"{key}.{k}", w[k]) for k in contact_keys() if k in w})
     for i, t in enumerate(p["initial"]):
         key = f"particles.initial[{i}]"
         for k in t:
@@ -671,23 +658,19 @@ chute (entrance at `geometry.z_start`, measurement origin at z = 0). Gravity is
 g (0, -cos theta, sin theta) with theta = `gravity.inclination_deg`; the frame rotates about the
 vertical (the direction of -gravity) through `frame.axis_point`.
 
-Derived numbers (`cfddem check CASE`): particle mass; per contact pair the normal damping
-eta_n = -2 ln(e_n) sqrt(m* k_n) / sqrt(pi^2 + ln^2 e_n), k_t = (2/7) k_n (pi^2 + ln^2 e_t)/(pi^2 + ln^2 e_n),
-eta_t (with m_t = 2/7 m*), the collision time t_c = sqrt(m* (pi^2 + ln^2 e_n)/k_n) (m* = m/2
-particle-particle, m particle-wall); dt/t_c (warning above t_c/20, refused above t_c/5 unless
+Derived numbers (`cfddem check CASE`): particle mass; per contact pair {default_law_numbers}; dt/t_c (warning above t_c/20, refused above t_c/5 unless
 `time.force = true` or `--force`); the expected particle count and memory.
-With `contact.model = "hertz_mindlin"`: E* = E/(2(1 - nu^2)), G* = E/(4(2 - nu)(1 + nu)), beta, and
-at the expected impact speed v (the case's speed scale, at least 1 m/s) the Hertz collision time
-t_c = 2.87 (m*^2/(R* E*^2 v))^(1/5) and the Rayleigh time T_R = pi R sqrt(rho/G)/(0.1631 nu + 0.8766);
-warning above dt = t_c/20 or 0.2 T_R, refused above t_c/5 unless forced.
-
+{other_law_numbers}
 This file is generated from `cfddem/config.py` (`python -m cfddem.config > docs/case-format.md`);
 a test keeps it current.
 """
 
 
 def case_format_markdown() -> str:
-    return CASE_FORMAT_HEADER + schema_markdown()
+    # the derived numbers of each contact law come from its module (check_doc)
+    default_law, other_laws = check_docs()
+    header = CASE_FORMAT_HEADER.replace("{default_law_numbers}", default_law).replace("{other_law_numbers}", other_laws)
+    return header + schema_markdown()
 
 
 if __name__ == "__main__":  # pragma: no cover

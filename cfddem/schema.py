@@ -2,9 +2,9 @@
 meaning, allowed range) and its short constructors.
 
 :mod:`cfddem.config` assembles the schema from its own sections and from the sections each
-registered scene (:mod:`cfddem.scenes`) and contact law contributes; this module imports
-nothing of cfddem, so that scene modules can declare their keys without importing the
-configuration loader.
+registered scene (:mod:`cfddem.scenes`) and contact law contributes; it imports nothing of
+cfddem but the contact-law registry, so that scene modules can declare their keys without
+importing the configuration loader.
 """
 
 from __future__ import annotations
@@ -57,9 +57,11 @@ def nonneg(default, unit, doc, **kw) -> Key:
 
 
 def wall_override(what: str) -> dict:
-    """Per-wall-group contact overrides of a scene (unset: contact.particle_wall)."""
-    return {k: Key("float", None, u, f"{what}: {doc} (default: contact.particle_wall.{k})", lo=0.0)
-            for k, u, doc in (("mu", "-", "sliding friction"), ("mu_r", "-", "rolling friction"),
-                              ("e_n", "-", "normal restitution"), ("e_t", "-", "tangential restitution"),
-                              ("k_n", "N/m", "normal stiffness"), ("E", "Pa", "Young's modulus (hertz_mindlin)"),
-                              ("nu", "-", "Poisson ratio (hertz_mindlin)"), ("e", "-", "restitution (hertz_mindlin)"))}
+    """Per-wall-group contact overrides of a scene (unset: contact.particle_wall): every key of
+    every registered contact law (:func:`cfddem.particles.contact.contact_keys`);
+    :func:`cfddem.particles.contact.check_contact_values` checks their ranges."""
+    from .particles.contact import contact_keys
+
+    return {k.name: Key("float", None, k.unit, f"{what}: {k.short} (default: contact.particle_wall.{k.name})",
+                        lo=0.0)
+            for k in contact_keys().values()}

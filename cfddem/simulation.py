@@ -27,6 +27,7 @@ from . import __version__
 from ._jit import get_threads, set_threads
 from .config import Case
 from .errors import CaseError, RunError
+from .particles.contact import ContactLaw, contact_law
 from .scenes import scene_of
 from .scenes.common import frame_omega, gravity_vector, initial_particles, wall_specs, walls_bounding_box
 
@@ -696,22 +697,6 @@ def check_disk_space(case: Case, out: Path) -> None:
 # ----------------------------------------------------------------------------------------------
 # engine adapters and derived numbers (shared with `cfddem check`)
 # ----------------------------------------------------------------------------------------------
-def contact_law(params: dict, model: str | None = None):
-    """The engine's contact law for a contact table: ``model`` "linear" (k_n, e_n, e_t, mu, mu_r)
-    or "hertz_mindlin" (E, nu, e, mu, mu_r; physics.md §1.2).  Without ``model`` the table's own
-    "model" entry decides (default linear)."""
-    from .particles.contact import HertzMindlinContact, LinearContact
-
-    model = model or params.get("model", "linear")
-    if model == "hertz_mindlin":
-        return HertzMindlinContact(E=params["E"], nu=params["nu"], e=params["e"], mu=params["mu"],
-                                   mu_r=params["mu_r"])
-    if model != "linear":
-        raise CaseError("contact.model", f"{model!r} is not allowed: one of 'linear', 'hertz_mindlin'")
-    return LinearContact(k_n=params["k_n"], e_n=params["e_n"], e_t=params["e_t"], mu=params["mu"],
-                         mu_r=params["mu_r"])
-
-
 def engine_wall(w, model: str | None = None):
     """The engine's wall object for a :class:`~cfddem.scenes.common.WallSpec` (``model``: see
     :func:`contact_law`)."""
@@ -741,26 +726,28 @@ def impact_speed(case: Case) -> float:
     return max(expected_max_speed(case), 1.0)
 
 
-def collision_time(case: Case) -> float:
-    """The shortest normal collision time of the case (pp with m* = m/2, R* = R/2 of the
-    smallest particle; pw with m* = m, R* = R).  Hertz-Mindlin: the Hertz time at
-    :func:`impact_speed`."""
+def contact_pairs(case: Case) -> list[tuple[str, ContactLaw, float, float]]:
+    """(label, law, m*, R*) of every contact pair of the case, for the smallest particle:
+    particle-particle (m* = m/2, R* = R/2), then each wall (m* = m, R* = R)."""
     m = particle_mass(case)
     r = 0.5 * case.particles.diameter
-    v = impact_speed(case) if case.contact.model == "hertz_mindlin" else None
     model = case.contact.model
-    tcs = [contact_law(case.resolved["contact"]["particle_particle"], model).collision_time(0.5 * m, 0.5 * r, v)]
-    for w in wall_specs(case):
-        tcs.append(contact_law(w.params, model).collision_time(m, r, v))
-    return min(tcs)
+    pp = contact_law(case.resolved["contact"]["particle_particle"], model)
+    return [("particle-particle", pp, 0.5 * m, 0.5 * r)] + [
+        (f"particle-wall ({w.name})", contact_law(w.params, model), m, r) for w in wall_specs(case)]
+
+
+def collision_time(case: Case) -> float:
+    """The shortest normal collision time of the case's contact pairs (:func:`contact_pairs`),
+    at :func:`impact_speed` for laws whose time depends on it (Hertz-Mindlin)."""
+    v = impact_speed(case)
+    return min(law.collision_time(meff, reff, v) for _, law, meff, reff in contact_pairs(case))
 
 
 def rayleigh_time(case: Case) -> float:
-    """Hertz-Mindlin: the Rayleigh time of the smallest particle (particle-particle material);
-    linear law: inf."""
-    if case.contact.model != "hertz_mindlin":
-        return math.inf
-    law = contact_law(case.resolved["contact"]["particle_particle"], "hertz_mindlin")
+    """The Rayleigh time of the smallest particle (particle-particle material); inf for laws
+    without one (linear)."""
+    law = contact_law(case.resolved["contact"]["particle_particle"], case.contact.model)
     return law.rayleigh_time(0.5 * case.particles.diameter, case.particles.density)
 
 
@@ -817,24 +804,11 @@ def describe_case(case: Case) -> list[str]:
         lines.append(f"particle: d = {d * 1e3:.3g} mm" + (f"..{case.particles.diameter_max * 1e3:.3g} mm"
                                                          if case.particles.diameter_max else "")
                      + f", rho = {case.particles.density:g} kg/m3, m = {m:.4g} kg, I = {0.1 * m * d * d:.4g} kg m2")
-        model = case.contact.model
-        pp = contact_law(case.resolved["contact"]["particle_particle"], model)
-        r = 0.5 * d
         v = impact_speed(case)
-        for label, law, meff, reff in [("particle-particle", pp, 0.5 * m, 0.5 * r)] + [
-                (f"particle-wall ({w.name})", contact_law(w.params, model), m, r) for w in wall_specs(case)]:
-            if model == "hertz_mindlin":
-                dv = law.derived(meff, reff, v)
-                lines.append(f"{label}: Hertz-Mindlin E* = {dv['E_star']:.4g} Pa, G* = {dv['G_star']:.4g} Pa, "
-                             f"beta = {dv['beta']:.4g}; at v = {v:.3g} m/s: max overlap {dv['d_max'] / r:.3g} R, "
-                             f"S_n = {dv['S_n']:.4g} N/m, eta_n = {dv['eta_n']:.4g} kg/s, S_t = {dv['S_t']:.4g} N/m, "
-                             f"t_c = {dv['t_c']:.4g} s (m* = {meff:.4g} kg, R* = {reff:.4g} m)")
-                continue
-            dv = law.derived(meff)
-            lines.append(f"{label}: k_n = {law.k_n:g} N/m, eta_n = {dv['eta_n']:.4g} kg/s, k_t = {dv['k_t']:.4g} N/m, "
-                         f"eta_t = {dv['eta_t']:.4g} kg/s, t_c = {dv['t_c']:.4g} s (m* = {meff:.4g} kg)")
-        if model == "hertz_mindlin":
-            tr = rayleigh_time(case)
+        for label, law, meff, reff in contact_pairs(case):
+            lines.append(f"{label}: {law.describe(meff, reff, v, 0.5 * d)}")
+        tr = rayleigh_time(case)
+        if math.isfinite(tr):
             lines.append(f"Rayleigh time T_R = {tr:.4g} s: dt = {case.time.dt / tr:.3g} T_R "
                          f"({'OK' if case.time.dt <= 0.2 * tr else 'WARNING: above 0.2 T_R'})")
         ratio = case.time.dt / collision_time(case)

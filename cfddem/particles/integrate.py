@@ -32,8 +32,8 @@ import numpy as np
 
 from cfddem._jit import kernel, parallel_kernel, prange
 from cfddem.particles._twin import serial_twin
-from cfddem.particles.contact import (P_CN, P_CT, P_KN, P_KT, P_MODEL, P_MU, P_MUR, pair_law,
-                                      rolling_torque_limited)
+from cfddem.particles.contact import (P_1, P_2, P_3, P_4, P_MODEL, P_MU, P_MUR, pair_law,
+                                      rolling_torque_limited, spring_energy)
 from cfddem.particles.neighbours import _min_image, _wrap
 from cfddem.particles.walls import wall_contact, wall_contact_s
 
@@ -156,10 +156,10 @@ def pair_forces(npairs, pi, pj, pos, vel, omg, radius, mass, inertia, params, pe
     d_n / min(R_a, R_b)."""
     mur = params[0, P_MUR]
     model = params[0, P_MODEL]
-    kn = params[0, P_KN]
-    cn = params[0, P_CN]
-    kt = params[0, P_KT]
-    ct = params[0, P_CT]
+    p1 = params[0, P_1]
+    p2 = params[0, P_2]
+    p3 = params[0, P_3]
+    p4 = params[0, P_4]
     mu = params[0, P_MU]
     ovmax = 0.0
     for k in prange(npairs):
@@ -198,7 +198,7 @@ def pair_forces(npairs, pi, pj, pos, vel, omg, radius, mass, inertia, params, pe
         vy = vel[a, 1] - vel[b, 1] + sz * nx - sx * nz
         vz = vel[a, 2] - vel[b, 2] + sx * ny - sy * nx
         fx, fy, fz, tx, ty, tz, hx, hy, hz, fnabs = pair_law(
-            model, kn, cn, kt, ct, mu, meff, ra * rb / rs, dn, nx, ny, nz, vx, vy, vz,
+            model, p1, p2, p3, p4, mu, meff, ra * rb / rs, dn, nx, ny, nz, vx, vy, vz,
             hist[k, 0], hist[k, 1], hist[k, 2], dt_hist)
         hist[k, 0] = hx
         hist[k, 1] = hy
@@ -342,7 +342,7 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
                 rvy = vy - wgeom[w, 17] + sz * ax_ - sx * az_
                 rvz = vz - wgeom[w, 18] + sx * ay_ - sy * ax_
                 cfx, cfy, cfz, ctx, cty, ctz, hx, hy, hz, fnabs = pair_law(
-                    wpar[w, P_MODEL], wpar[w, P_KN], wpar[w, P_CN], wpar[w, P_KT], wpar[w, P_CT],
+                    wpar[w, P_MODEL], wpar[w, P_1], wpar[w, P_2], wpar[w, P_3], wpar[w, P_4],
                     wpar[w, P_MU], m, r, ov, ax_, ay_, az_, rvx, rvy, rvz,
                     whist[i, w, 0], whist[i, w, 1], whist[i, w, 2], dt_hist)
                 whist[i, w, 0] = hx
@@ -514,21 +514,10 @@ def worst_overlap(npairs, pi, pj, pos, radius, periodic_len, n, wgeom, nw):
     return who, best
 
 
-@kernel(inline="always")
-def _spring_energy(model, kn, kt, reff, dn, hx, hy, hz):
-    """Elastic energy of one contact: linear 1/2 k_n d_n^2 + 1/2 k_t |d_t|^2; Hertz-Mindlin
-    (8/15) E* sqrt(R*) d_n^(5/2) + 1/2 S_t |d_t|^2 with S_t = 8 G* sqrt(R* d_n) (kn = E*, kt = G*)."""
-    h2 = hx * hx + hy * hy + hz * hz
-    if model == 1.0:
-        q = math.sqrt(reff * dn)
-        return 8.0 / 15.0 * kn * q * dn * dn + 0.5 * 8.0 * kt * q * h2
-    return 0.5 * kn * dn * dn + 0.5 * kt * h2
-
-
 @kernel
 def elastic_energy(npairs, pi, pj, pos, radius, periodic_len, hist, pp, n, wgeom, nw, wpar, whist):
-    """Energy stored in the contact springs (pairs with the row ``pp``, walls with ``wpar``),
-    see :func:`_spring_energy`."""
+    """Energy stored in the contact springs (pairs with the row ``pp``, walls with ``wpar``): the
+    ``energy`` kernel of each contact's law (:func:`cfddem.particles.contact.spring_energy`)."""
     e = 0.0
     for k in range(npairs):
         a = pi[k]
@@ -538,14 +527,14 @@ def elastic_energy(npairs, pi, pj, pos, radius, periodic_len, hist, pp, n, wgeom
         dz = _min_image(pos[b, 2] - pos[a, 2], periodic_len[2])
         dn = radius[a] + radius[b] - math.sqrt(dx * dx + dy * dy + dz * dz)
         if dn > 0.0:
-            e += _spring_energy(pp[P_MODEL], pp[P_KN], pp[P_KT], radius[a] * radius[b] / (radius[a] + radius[b]),
-                                dn, hist[k, 0], hist[k, 1], hist[k, 2])
+            e += spring_energy(pp[P_MODEL], pp[P_1], pp[P_2], pp[P_3], pp[P_4],
+                               radius[a] * radius[b] / (radius[a] + radius[b]), dn, hist[k, 0], hist[k, 1], hist[k, 2])
     for i in range(n):
         for w in range(nw):
             ov, nx, ny, nz, qx, qy, qz = wall_contact(wgeom, w, pos[i, 0], pos[i, 1], pos[i, 2], radius[i])
             if ov > 0.0:
-                e += _spring_energy(wpar[w, P_MODEL], wpar[w, P_KN], wpar[w, P_KT], radius[i], ov,
-                                    whist[i, w, 0], whist[i, w, 1], whist[i, w, 2])
+                e += spring_energy(wpar[w, P_MODEL], wpar[w, P_1], wpar[w, P_2], wpar[w, P_3], wpar[w, P_4],
+                                   radius[i], ov, whist[i, w, 0], whist[i, w, 1], whist[i, w, 2])
     return e
 
 

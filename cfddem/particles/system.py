@@ -25,7 +25,7 @@ from cfddem.errors import CaseError
 from cfddem.particles import clumps as cl
 from cfddem.particles import integrate as it
 from cfddem.particles import neighbours as nb
-from cfddem.particles.contact import LinearContact
+from cfddem.particles.contact import ContactLaw
 from cfddem.particles.walls import KIND_OFF, Wall, pack_walls
 
 
@@ -55,7 +55,7 @@ class ParticleSystem:
     #: thread start-up cost); tests set it to 0 to exercise the parallel kernels.
     serial_below: int = 1000
 
-    def __init__(self, *, pp: LinearContact, walls: list[Wall], dt: float,
+    def __init__(self, *, pp: ContactLaw, walls: list[Wall], dt: float,
                  gravity=(0.0, 0.0, 0.0), omega=(0.0, 0.0, 0.0), axis_point=(0.0, 0.0, 0.0),
                  periodic=(None, None, None), skin: float | None = None,
                  capacity: int = 1024, max_overlap_ratio: float = 0.5):

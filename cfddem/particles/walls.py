@@ -46,7 +46,7 @@ import numpy as np
 
 from cfddem._jit import kernel
 from cfddem.errors import CaseError
-from cfddem.particles.contact import LinearContact
+from cfddem.particles.contact.base import NPARAM, ContactLaw
 
 WALL_NGEOM = 20
 KIND_PLANE = 0
@@ -68,7 +68,7 @@ def _unit(key, v):
 class Wall:
     """Base wall: contact parameters, velocity, reference point for the torque on the wall."""
 
-    contact: LinearContact  # or HertzMindlinContact
+    contact: ContactLaw  # LinearContact, HertzMindlinContact, ... (cfddem.particles.contact)
     velocity: tuple = (0.0, 0.0, 0.0)
     ref_point: tuple | None = None
     name: str = ""
@@ -180,7 +180,7 @@ def pack_walls(walls: list[Wall]):
     nw = len(walls)
     geom = np.zeros((max(nw, 1), WALL_NGEOM))
     ref = np.zeros((max(nw, 1), 3))
-    par = np.zeros((max(nw, 1), 8))
+    par = np.zeros((max(nw, 1), NPARAM))
     for k, w in enumerate(walls):
         geom[k] = w.geometry()
         ref[k] = np.asarray(w.ref_point if w.ref_point is not None else w.point, float)

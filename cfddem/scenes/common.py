@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import CaseError
+from ..particles.contact import contact_keys
 
 
 def gravity_vector(case) -> np.ndarray:
@@ -39,7 +40,7 @@ class WallSpec:
     normal: np.ndarray
     u_axis: np.ndarray | None = None
     half_extents: tuple[float, float] | None = None
-    params: dict | None = None  # k_n, e_n, e_t, mu, mu_r (linear) or E, nu, e, mu, mu_r (hertz_mindlin)
+    params: dict | None = None  # contact keys of the law (cfddem.particles.contact), e.g. k_n, e_n, e_t, mu, mu_r
     inside: bool = True  # cylinder: particles inside the ring
 
     def quads(self, size: float = 1.0, segments: int = 32) -> list[np.ndarray]:
@@ -89,7 +90,7 @@ def wall_specs(case) -> list[WallSpec]:
     pw = case.resolved["contact"]["particle_wall"]
     walls: list[WallSpec] = list(scene_of(case).wall_specs(case))
     for i, w in enumerate(geo.walls):
-        params = {k: float(w[k]) for k in ("k_n", "e_n", "e_t", "mu", "mu_r", "E", "nu", "e") if k in w}
+        params = {k: float(w[k]) for k in contact_keys() if k in w}
         if w["type"] == "cylinder":
             walls.append(WallSpec(w.get("name", f"wall{i}"), "cylinder", np.array(w["point"], float),
                                   np.array(w["axis"], float), None,

@@ -68,6 +68,7 @@ import numpy as np
 
 from ..errors import CaseError, RunError
 from ..measure.shear import bulk_friction, inertial_number, lid_disc
+from ..particles.contact import check_contact_values
 from . import Scene
 from ..schema import Key, wall_override
 from ..schema import nonneg as _nonneg
@@ -118,6 +119,8 @@ def check_shear_case(r: dict) -> None:
         raise CaseError("gravity.g", "the shear cell needs gravity (the fill settles under it)")
     if r["frame"]["rpm"] != 0.0:
         raise CaseError("frame.rpm", "the shear cell runs in a fixed frame (rpm = 0)")
+    for grp in ("rings", "plate"):
+        check_contact_values(f"shear.{grp}", s[grp])
     D = s["cell_diameter"]
     if D < 10 * d:
         raise CaseError("shear.cell_diameter", f"{D:g} m is less than 10 particle diameters ({10 * d:g} m)")

@@ -66,6 +66,7 @@ import numpy as np
 
 from ..errors import CaseError
 from ..measure.silo import VelocityField, bulk_density, channel_boundary, fit_mass_flow, surface_height
+from ..particles.contact import check_contact_values
 from . import Scene
 from ..schema import Key, wall_override
 from ..schema import nonneg as _nonneg
@@ -247,14 +248,7 @@ def check_silo_case(r: dict) -> None:
         raise CaseError("silo.removal_depth", f"{s['removal_depth']:g} m is above the gate and lips: must be at "
                                               f"least lip + d/2 = {lip + 0.5 * d:g} m")
     for grp in ("front_back", "sides", "bottom", "gate_wall"):
-        for k in ("e_n", "e_t", "e"):
-            v = s[grp][k]
-            if v is not None and not 0.0 < v <= 1.0:
-                raise CaseError(f"silo.{grp}.{k}", f"{v:g} must be in (0, 1]")
-        for k in ("k_n", "E"):
-            v = s[grp][k]
-            if v is not None and not v > 0:
-                raise CaseError(f"silo.{grp}.{k}", f"{v:g} must be positive")
+        check_contact_values(f"silo.{grp}", s[grp])
     if s["height"]:
         g = SiloGeometry(s, d, r["particles"]["seed"], r["particles"]["clump"], r["particles"]["density"],
                          r["particles"]["clump_spheres"])
