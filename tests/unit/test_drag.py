@@ -10,6 +10,8 @@ from cfddem.coupling import drag
 from cfddem.errors import CaseError
 from tests.analytic import Ergun
 
+pytestmark = pytest.mark.nojit  # also run as plain Python (tests/unit/test_nojit_tier.py)
+
 NAMES = sorted(drag.CLOSURES)
 MU, RHO_G, RHO_P, D = 1.8e-5, 1.2, 2550.0, 3.0e-3
 

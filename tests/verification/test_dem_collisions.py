@@ -8,6 +8,8 @@ import pytest
 from cfddem.particles import LinearContact, ParticleSystem, PlaneWall
 from tests.analytic import LinearCollision
 
+pytestmark = pytest.mark.nojit  # also run as plain Python (tests/unit/test_nojit_tier.py)
+
 R = 1.5e-3
 RHO = 2550.0
 M = RHO * 4.0 / 3.0 * math.pi * R**3
