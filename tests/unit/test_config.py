@@ -18,6 +18,7 @@ def err(raw, overrides=None, case_dir="."):
     return e.value
 
 
+@pytest.mark.nojit
 def test_shipped_cases_load():
     for name in ("chute_16rpm", "chute_0rpm"):
         c = load_case(CASES / name)
@@ -31,6 +32,7 @@ def test_shipped_cases_load():
     assert load_case(CASES / "chute_0rpm").frame.rpm == 0.0
 
 
+@pytest.mark.nojit
 def test_defaults_filled():
     c = build_case({})
     assert c.time.dt == 1e-5
@@ -38,6 +40,7 @@ def test_defaults_filled():
     assert c.contact.particle_particle.mu_r == 0.0
 
 
+@pytest.mark.nojit
 def test_unknown_key_suggests():
     e = err({"particles": {"diamter": 0.003}})
     assert e.key == "particles.diamter"
@@ -48,6 +51,7 @@ def test_unknown_key_suggests():
     assert e.key == "contact.particle_particle.k"
 
 
+@pytest.mark.nojit
 @pytest.mark.parametrize("raw,key,words", [
     ({"particles": {"diameter": -0.003}}, "particles.diameter", "out of range"),
     ({"particles": {"diameter": 0}}, "particles.diameter", "out of range"),
@@ -95,6 +99,7 @@ def test_bad_values_name_the_key(raw, key, words):
     assert "\n" not in str(e)
 
 
+@pytest.mark.nojit
 def test_overrides_parse_as_toml_and_validate():
     assert parse_override("particles.diameter=0.004") == ("particles.diameter", 0.004)
     assert parse_override("inlet.type=sluice") == ("inlet.type", "sluice")
@@ -107,6 +112,7 @@ def test_overrides_parse_as_toml_and_validate():
     assert "KEY=VALUE" in str(e)
 
 
+@pytest.mark.nojit
 def test_resolved_toml_round_trip():
     c = load_case(CASES / "chute_16rpm", overrides=["time.end_time=0.5", "measurements.start_time=0.2"])
     again = tomllib.loads(c.to_toml())
@@ -114,11 +120,13 @@ def test_resolved_toml_round_trip():
     assert c2.resolved == c.resolved
 
 
+@pytest.mark.nojit
 def test_case_format_doc_is_current():
     doc = (ROOT / "docs" / "case-format.md").read_text()
     assert doc == case_format_markdown(), "regenerate: python -m cfddem.config > docs/case-format.md"
 
 
+@pytest.mark.nojit
 def test_malformed_toml(write_case):
     d = write_case("[time\nend_time = 1")
     with pytest.raises(CaseError) as e:

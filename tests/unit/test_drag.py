@@ -8,6 +8,9 @@ from scipy.optimize import bisect
 
 from cfddem.coupling import drag
 from cfddem.errors import CaseError
+from tests.analytic import Ergun
+
+pytestmark = pytest.mark.nojit  # also run as plain Python (tests/unit/test_nojit_tier.py)
 
 NAMES = sorted(drag.CLOSURES)
 MU, RHO_G, RHO_P, D = 1.8e-5, 1.2, 2550.0, 3.0e-3
@@ -130,13 +133,11 @@ def test_terminal_velocity_stokes_limit():
 
 
 def test_umf_ergun_closed_form():
-    """Ergun closure: 1.75 Re^2/eps^3 + 150 (1-eps) Re/eps^3 = Ar (Wen & Yu 1966 quadratic)."""
+    """Ergun closure: 1.75 Re^2/eps^3 + 150 (1-eps) Re/eps^3 = Ar (Wen & Yu 1966 quadratic,
+    tests.analytic.Ergun)."""
     eps = 0.4
-    ar = RHO_G * (RHO_P - RHO_G) * 9.81 * D**3 / MU**2
-    a, b = 1.75 / eps**3, 150.0 * (1 - eps) / eps**3
-    re = (-b + math.sqrt(b * b + 4 * a * ar)) / (2 * a)
     umf = drag.minimum_fluidisation_velocity(eps, RHO_P, RHO_G, D, MU, "ergun_gidaspow")
-    assert umf == pytest.approx(re * MU / (RHO_G * D), rel=1e-10)
+    assert umf == pytest.approx(Ergun(eps, D, MU, RHO_G).minimum_fluidisation_velocity(RHO_P, g=9.81), rel=1e-10)
     assert 1.2 < umf < 1.6
 
 

@@ -7,6 +7,8 @@ from cfddem.errors import CaseError
 from cfddem.gas import (BoundarySet, FreeSlip, Inlet, LidCrossWind, NoSlip, Periodic, PressureOutlet,
                         StaggeredGrid, Velocity)
 
+pytestmark = pytest.mark.nojit  # also run as plain Python (tests/unit/test_nojit_tier.py)
+
 SIDES = ("x-", "x+", "y-", "y+", "z-", "z+")
 
 

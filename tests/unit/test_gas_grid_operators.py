@@ -8,7 +8,8 @@ from cfddem.gas import operators as op
 from cfddem.gas.grid import Field
 
 
-pytestmark = pytest.mark.usefixtures("one_numba_thread")
+pytestmark = [pytest.mark.usefixtures("one_numba_thread"),
+              pytest.mark.nojit]  # also run as plain Python (tests/unit/test_nojit_tier.py)
 
 
 def make_grid(shape=(5, 4, 3), halo=2):

@@ -7,6 +7,8 @@ import pytest
 
 from cfddem.particles.inlets import SluiceInlet, bcc_sluice_lattice
 
+pytestmark = pytest.mark.nojit  # also run as plain Python (tests/unit/test_nojit_tier.py)
+
 
 class FakeSystem:
     """Minimal stand-in for ParticleSystem: brute-force overlaps, free flight at feed speed."""

@@ -12,6 +12,8 @@ from cfddem.measure.chute import (ChuteMeasurements, MeasurementCells, TimeAvera
                                   depth_profiles, mean_streamwise_velocity, sphere_volume_below,
                                   surface_velocity_cells)
 
+pytestmark = pytest.mark.nojit  # also run as plain Python (tests/unit/test_nojit_tier.py)
+
 W = 0.08
 R = 0.0015
 

@@ -8,6 +8,8 @@ import pytest
 from cfddem.errors import CaseError
 from cfddem.particles import LinearContact, ParticleSystem, PlaneWall
 
+pytestmark = pytest.mark.nojit  # also run as plain Python (tests/unit/test_nojit_tier.py)
+
 R, RHO = 1.5e-3, 2550.0
 M = RHO * 4.0 / 3.0 * math.pi * R**3
 

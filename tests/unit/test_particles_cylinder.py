@@ -11,6 +11,8 @@ from cfddem.errors import CaseError
 from cfddem.particles import CylinderWall, LinearContact, ParticleSystem, RectangleWall
 from cfddem.particles.walls import wall_contact_py
 
+pytestmark = pytest.mark.nojit  # also run as plain Python (tests/unit/test_nojit_tier.py)
+
 C = LinearContact(k_n=1000.0, e_n=0.7, e_t=0.5, mu=0.3)
 RC, H, r = 0.05, 0.02, 0.002
 

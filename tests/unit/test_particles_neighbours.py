@@ -23,6 +23,7 @@ def _random_system(n, periodic, seed, capacity=64):
     return s
 
 
+@pytest.mark.nojit
 @pytest.mark.parametrize("periodic", [(False, False, False), (True, False, True), (True, True, True)])
 @pytest.mark.parametrize("seed", [0, 1])
 def test_pairs_equal_brute_force(periodic, seed):
@@ -46,6 +47,7 @@ def test_pairs_equal_brute_force(periodic, seed):
     assert sorted(cur["second_list"][: s.n_pairs].tolist()) == list(range(s.n_pairs))
 
 
+@pytest.mark.nojit
 def test_far_away_particle_does_not_blow_up_the_grid():
     s = _random_system(100, (False, False, False), 2)
     s.add_particles([[1.0e3, 5.0, -2.0e3]], 0.0, 1e-3, RHO)

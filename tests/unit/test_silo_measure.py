@@ -9,6 +9,8 @@ import pytest
 from cfddem.measure.silo import (VelocityField, beverloo_rate, bulk_density, channel_boundary, fit_beverloo,
                                  fit_mass_flow, surface_height)
 
+pytestmark = pytest.mark.nojit  # also run as plain Python (tests/unit/test_nojit_tier.py)
+
 
 def test_mass_flow_fit_recovers_the_steady_rate_and_ignores_start_and_end():
     # start-up (quadratic) to t = 0.5 s, steady 0.25 kg/s to t = 3.5 s, then slowing to 0.8 kg

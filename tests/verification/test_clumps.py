@@ -5,12 +5,12 @@ import math
 import numpy as np
 
 from cfddem.particles.clumps import ClumpShape, union_mass_properties
+from tests.analytic import SpherePair
 
 
 def test_two_overlapping_equal_spheres_volume_and_centre():
     R, d, rho = 0.002, 0.0015, 1000.0
-    lens = math.pi * (4 * R + d) * (2 * R - d) ** 2 / 12.0
-    v_exact = 2 * 4.0 / 3.0 * math.pi * R**3 - lens
+    v_exact = SpherePair(R, R, d).volume
     M, com, I, mm = union_mass_properties([[0, 0, 0], [d, 0, 0]], R, rho)
     assert abs(M / (rho * v_exact) - 1.0) < 5e-4
     assert np.allclose(com, [0.5 * d, 0, 0], atol=1e-4 * R)
@@ -25,8 +25,7 @@ def test_two_overlapping_equal_spheres_volume_and_centre():
 
 def test_unequal_overlap_volume():
     R1, R2, d, rho = 0.002, 0.0013, 0.0025, 1.0
-    lens = math.pi * (R1 + R2 - d) ** 2 * (d * d + 2 * d * (R1 + R2) - 3 * (R1 - R2) ** 2) / (12 * d)
-    v_exact = 4.0 / 3.0 * math.pi * (R1**3 + R2**3) - lens
+    v_exact = SpherePair(R1, R2, d).volume
     M, com, I, mm = union_mass_properties([[0, 0, 0], [0, d, 0]], [R1, R2], rho)
     assert abs(M / v_exact - 1.0) < 5e-4
 
@@ -36,8 +35,7 @@ def test_separate_spheres_exact():
     M, com, I, _ = union_mass_properties([[-a, 0, 0], [a, 0, 0]], R, rho)
     m = rho * 4 / 3 * math.pi * R**3
     assert abs(M - 2 * m) < 1e-15
-    assert np.allclose(np.diag(I), [2 * 0.4 * m * R**2, 2 * (0.4 * m * R**2 + m * a * a),
-                                    2 * (0.4 * m * R**2 + m * a * a)], rtol=1e-12)
+    assert np.allclose(np.diag(I), SpherePair(R, R, 2 * a).separated_inertia(rho), rtol=1e-12, atol=0)
 
 
 def test_shape_principal_frame_and_user_override():
@@ -49,5 +47,5 @@ def test_shape_principal_frame_and_user_override():
     # offsets map back to the given centres
     assert np.allclose(sh.offsets @ sh.frame.T + sh.com_given, c, atol=1e-15)
     user = ClumpShape.from_spheres(c, 0.0015, 1000.0, mass=1e-3, inertia=np.diag([1e-9, 2e-9, 3e-9]))
-    assert user.mass == 1e-3 and np.allclose(user.inertia, [1e-9, 2e-9, 3e-9])
+    assert user.mass == 1e-3 and np.allclose(user.inertia, [1e-9, 2e-9, 3e-9], rtol=1e-12, atol=0)
     assert abs(user.member_mass.sum() - 1e-3) < 1e-15

@@ -1,17 +1,18 @@
 """Fixed packed bed in a periodic box driven by a mean pressure gradient G (a body force
 eps G on the gas, through the gas's gravity term eps_f rho g with g = G/rho): the superficial
 velocity U solves U = eps^2 G / beta(eps, Re(U)), Re = rho U d / mu (physics.md section 4,
-beta from the closure)."""
+beta from the closure; tests.analytic.FixedBed, and for the Ergun branch of ergun_gidaspow the
+closed form tests.analytic.Ergun)."""
 
 import numpy as np
 import pytest
-from scipy.optimize import brentq
 
 from cfddem.coupling import drag
 from cfddem.coupling.exchange import CoupledGas
 from cfddem.gas import Periodic, StaggeredGrid
 from cfddem.particles.contact import LinearContact
 from cfddem.particles.system import ParticleSystem
+from tests.analytic import Ergun, FixedBed
 
 RHO, MU = 1.2, 1.8e-5
 PERIODIC = {s: Periodic() for s in ("x-", "x+", "y-", "y+", "z-", "z+")}
@@ -53,10 +54,10 @@ def test_packed_bed_superficial_velocity(closure):
     e = cg.gas.eps.interior
     assert np.ptp(e) < 1e-12 and abs(e.mean() - eps) < 1e-12  # uniform porosity as designed
 
-    def bal(U):
-        return U * float(drag.beta(eps, RHO * U * d / MU, MU, d, closure)) - eps**2 * G
-
-    U_expect = brentq(bal, 1e-9, 10.0, xtol=1e-14)
+    U_expect = FixedBed(eps, d, MU, RHO, drag.get_closure(closure)).superficial_velocity(G)
+    if closure == "ergun_gidaspow":  # eps < 0.8: the Ergun branch, a quadratic in U
+        assert eps < 0.8
+        assert U_expect == pytest.approx(Ergun(eps, d, MU, RHO).superficial_velocity(G), rel=1e-10)
     U = _superficial(cg)
     Re = RHO * U_expect * d / MU
     assert 1.0 < Re < 20.0  # beyond Stokes: the implicit relation matters

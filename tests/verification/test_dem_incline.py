@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from cfddem.particles import LinearContact, ParticleSystem, PlaneWall
+from tests.analytic import InclineSphere, LinearCollision
 
 R = 1.5e-3
 RHO = 2550.0
@@ -18,10 +19,10 @@ def _incline(theta, mu=MU, mu_r=MU_R, t_end=0.25):
     """Floor y = 0, gravity tilted by theta towards +x.  Returns (times, x velocity, spin z,
     position x) sampled every 1 ms."""
     pw = LinearContact(k_n=1000.0, e_n=0.5, e_t=0.5, mu=mu, mu_r=mu_r)
-    g = (G * math.sin(theta), -G * math.cos(theta), 0.0)
+    inc = InclineSphere(theta, mu, mu_r, G)
     s = ParticleSystem(pp=pw, walls=[PlaneWall(contact=pw, point=(0, 0, 0), normal=(0, 1, 0))],
-                       dt=1e-5, gravity=g)
-    y0 = R - M * G * math.cos(theta) / pw.k_n  # static overlap
+                       dt=1e-5, gravity=inc.gravity())
+    y0 = R - LinearCollision(pw.k_n, pw.e_n, M).static_overlap(inc.normal_load(M))
     s.add_particles([[0.0, y0, 0.0]], 0.0, R, RHO)
     return record_incline(s, t_end)
 
@@ -47,6 +48,7 @@ def _accel(t, v, t0=0.05):
 
 def test_at_rest_below_rolling_friction():
     theta = math.atan(0.6 * MU_R)
+    assert InclineSphere(theta, MU, MU_R, G).regime() == "rest"
     t, v, w, x = _incline(theta)
     # a free-rolling sphere would have reached 5/7 g sin(theta) t = 0.026 m/s
     print(f"rest: max |v| after 0.05 s = {np.max(np.abs(v[t > 0.05])):.3g} m/s, drift {abs(x[-1] - x[len(x) // 5]):.3g} m")
@@ -57,11 +59,12 @@ def test_at_rest_below_rolling_friction():
 
 @pytest.mark.parametrize("tan_theta", [0.3, 0.8])
 def test_rolling_below_sliding_threshold(tan_theta):
-    assert tan_theta < (7 * MU - 5 * MU_R) / 2
     theta = math.atan(tan_theta)
+    inc = InclineSphere(theta, MU, MU_R, G)
+    assert inc.regime() == "roll"
     t, v, w, x = _incline(theta)
     a = _accel(t, v)
-    a_th = 5.0 / 7.0 * G * (math.sin(theta) - MU_R * math.cos(theta))
+    a_th = inc.acceleration()
     print(f"rolling tan={tan_theta}: a/a_theory = {a / a_th:.5f}")
     assert a == pytest.approx(a_th, rel=1e-2)
     # rolling without slipping: v = -R w_z
@@ -70,11 +73,12 @@ def test_rolling_below_sliding_threshold(tan_theta):
 
 @pytest.mark.parametrize("tan_theta", [1.0, 1.5])
 def test_sliding_above_threshold(tan_theta):
-    assert tan_theta > (7 * MU - 5 * MU_R) / 2
     theta = math.atan(tan_theta)
+    inc = InclineSphere(theta, MU, MU_R, G)
+    assert inc.regime() == "slide"
     t, v, w, x = _incline(theta)
     a = _accel(t, v)
-    a_th = G * (math.sin(theta) - MU * math.cos(theta))
+    a_th = inc.acceleration()
     print(f"sliding tan={tan_theta}: a/a_theory = {a / a_th:.5f}")
     assert a == pytest.approx(a_th, rel=1e-2)
     assert np.all(v[t > 0.05] > -R * w[t > 0.05] * 1.01)  # slipping

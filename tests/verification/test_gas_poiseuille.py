@@ -5,21 +5,19 @@ Duct of side L along z (periodic), no-slip side walls, driven by a uniform body 
 rate (e.g. White, Viscous Fluid Flow, eq. 3-48, a = b = L/2) is
 
     Q = G L^4 / (12 mu) [1 - (192 / pi^5) sum_{n odd} tanh(n pi / 2) / n^5]
-      = G L^4 / (28.454 mu).
+      = G L^4 / (28.454 mu)
+
+(tests.analytic.SquareDuct).
 """
 
 import numpy as np
 import pytest
 
 from cfddem.gas import GasSolver, NoSlip, Periodic, StaggeredGrid
+from tests.analytic import SquareDuct
 
 
 pytestmark = pytest.mark.usefixtures("one_numba_thread")
-
-
-def q_exact(G, L, mu):
-    n = np.arange(1, 200, 2)
-    return G * L**4 / (12 * mu) * (1 - 192 / np.pi**5 * np.sum(np.tanh(n * np.pi / 2) / n**5))
 
 
 def duct_flow_rate(N, G=2.0, L=0.1, mu=1e-3, rho=1.0, viscosity="explicit", dt=None, T=0.6):
@@ -41,7 +39,7 @@ def duct_flow_rate(N, G=2.0, L=0.1, mu=1e-3, rho=1.0, viscosity="explicit", dt=N
 
 def test_square_duct_flow_rate_and_order():
     G, L, mu = 2.0, 0.1, 1e-3
-    qe = q_exact(G, L, mu)
+    qe = SquareDuct(G, L, mu).flow_rate()
     assert qe == pytest.approx(G * L**4 / (28.454 * mu), rel=1e-4)
     errs = [abs(duct_flow_rate(N, G, L, mu) - qe) / qe for N in (8, 16, 32)]
     orders = np.log2(np.array(errs[:-1]) / np.array(errs[1:]))

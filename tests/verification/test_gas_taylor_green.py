@@ -10,22 +10,10 @@ import numpy as np
 import pytest
 
 from cfddem.gas import GasSolver, Periodic, StaggeredGrid
+from tests.analytic import TaylorGreen
 
 
 pytestmark = pytest.mark.usefixtures("one_numba_thread")
-
-
-class TaylorGreen:
-    def __init__(self, nu, rho=1.0):
-        self.nu, self.rho = nu, rho
-
-    def velocity(self, t):
-        f = np.exp(-2 * self.nu * t)
-        return lambda x, y, z: (np.sin(x) * np.cos(y) * f, -np.cos(x) * np.sin(y) * f, 0 * x)
-
-    def pressure(self, t):
-        f = np.exp(-4 * self.nu * t)
-        return lambda x, y, z: 0.25 * self.rho * (np.cos(2 * x) + np.cos(2 * y)) * f
 
 
 def tg_error(N, advection, nu=0.05, T=0.5):
@@ -34,8 +22,8 @@ def tg_error(N, advection, nu=0.05, T=0.5):
     bcs = {s: Periodic() for s in ("x-", "x+", "y-", "y+", "z-", "z+")}
     s = GasSolver(g, rho=1.0, mu=nu, bcs=bcs, advection=advection, tol=1e-10)
     tg = TaylorGreen(nu)
-    s.set_velocity(tg.velocity(0.0))
-    s.set_pressure(tg.pressure(0.0))
+    s.set_velocity(lambda x, y, z: (*tg.velocity(x, y, 0.0), 0 * x))
+    s.set_pressure(lambda x, y, z: tg.pressure(x, y, 0.0))
     h = L / N
     n = int(np.ceil(T / (0.25 * h * h)))
     dt = T / n
@@ -43,9 +31,9 @@ def tg_error(N, advection, nu=0.05, T=0.5):
         info = s.step(dt)
         assert info.ok, info.message
     X, Y, Z = g.mesh("fcc")
-    ue = tg.velocity(T)(X, Y, Z)[0]
+    ue = tg.velocity(X, Y, T)[0]
     X, Y, Z = g.mesh("cfc")
-    ve = tg.velocity(T)(X, Y, Z)[1]
+    ve = tg.velocity(X, Y, T)[1]
     return max(np.max(np.abs(s.u.interior - ue)), np.max(np.abs(s.v.interior - ve)))
 
 
