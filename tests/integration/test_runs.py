@@ -243,6 +243,44 @@ enabled = false
     assert len(p.stderr.strip().splitlines()) == 1
 
 
+def test_repeated_lost_particle_warning_is_rate_limited(tmp_path):
+    """12 particles leave the box one by one (one lost-particle warning per exit/lost check,
+    every 1 ms): run.log shows the 1st and the 10th and, at the end, the total."""
+    d = tmp_path / "leak"
+    d.mkdir()
+    # outside the x+ wall, each crossing the lost margin (x = 0.055 m) 1.5 ms after the one before
+    parts = ", ".join(f"{{pos = [0.052, {0.005 + 0.01 * (k % 4):.3f}, {0.01 + 0.015 * (k // 4):.3f}], "
+                      f"radius = 0.0015, vel = [{2.0 / (k + 1):.6f}, 0, 0]}}" for k in range(12))
+    (d / "case.toml").write_text(f"""
+[time]
+end_time = 0.02
+dt = 2e-4
+force = true
+[output]
+vtk = false
+plots = false
+[geometry]
+type = "box"
+lo = [0, 0, 0]
+hi = [0.05, 0.05, 0.05]
+[exit]
+lost_margin = 0.005
+[gravity]
+g = 0.0
+[particles]
+initial = [{parts}]
+[measurements]
+enabled = false
+""")
+    s = Simulation(load_case(d), tmp_path / "o", echo=False, progress=False).run()
+    assert s.status == "done" and s.n_particles == 0
+    lines = [ln for ln in (tmp_path / "o" / "run.log").read_text().splitlines() if "left the domain" in ln]
+    assert len(lines) == 3, lines
+    assert "WARNING" in lines[0] and ": 1 particle(s) left the domain and were removed as lost" in lines[0]
+    assert "WARNING" in lines[1] and "[10th time; repeats are counted" in lines[1]
+    assert "INFO" in lines[2] and "warning repeated 12 times in this run (2 logged), the last: t = 0.0" in lines[2]
+
+
 def test_checkpoint_every_steps(tmp_path):
     d = box_case(tmp_path, end=0.01)
     out = tmp_path / "run"
