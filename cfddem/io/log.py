@@ -84,8 +84,8 @@ class RepeatLimit(logging.Filter):
         self.last[key] = record.getMessage()
         show = _is_decade(n)
         if show and n > 1:
-            record.msg = f"{self.last[key]} [{_ordinal(n)} time; repeats are counted, the total is logged at " \
-                         "the end of the run]"
+            record.msg = f"{self.last[key]} [{n}th time; repeats are counted, the total is logged at " \
+                         "the end of the run]"  # n is 10, 100, ...: always "th"
             record.args = None
         record._cfddem_repeat = show
         return show
@@ -105,10 +105,6 @@ def _is_decade(n: int) -> bool:
     while n % 10 == 0:
         n //= 10
     return n == 1
-
-
-def _ordinal(n: int) -> str:
-    return f"{n}{'th' if n % 100 in (11, 12, 13) else {1: 'st', 2: 'nd', 3: 'rd'}.get(n % 10, 'th')}"
 
 
 def log_repeat_totals(logger: logging.Logger) -> list[str]:
