@@ -154,7 +154,7 @@ SCHEMA: dict[str, dict] = {
                                "preconditioner) or 'amg' (pyamg smoothed aggregation, for comparison)",
                                choices=("mg", "amg")),
         "pressure_tol": Key("float", 1e-8, "-", "relative residual at which the pressure solve stops; on the "
-                            "recorded chute gas steps 1e-6 is 12 % cheaper per gas step and moves p and grad p "
+                            "recorded chute gas steps 1e-6 is 7-9 % cheaper per gas step and moves p and grad p "
                             "by < 1e-6 of their scale (docs/gas.md, 'Tolerance')", lo=0.0, hi=0.1, lo_open=True),
     },
 }

@@ -648,6 +648,9 @@ class Simulation:
                               _time.perf_counter() - t0)
             except Exception as e:
                 self.log.error("could not write the plots: %s", e)
+        from .io.log import log_repeat_totals
+
+        log_repeat_totals(self.log)  # the totals of the rate-limited repeated warnings
         return summary
 
 

@@ -321,8 +321,9 @@ class CoupledGas:
     gravity, omega, axis_point: the gas's body force and frame rotation (the particles have
     their own, in the ParticleSystem).
     periodic: per axis, whether it is periodic (default: from the bcs).
-    eps_min: porosity below which cells are reported; eps_floor: if set, the porosity
-    handed to the gas (and used by the closures) is max(eps, eps_floor), logged.
+    eps_min: porosity below which cells are counted (reported once, by :meth:`run_summary`);
+    eps_floor: if set, the porosity handed to the gas (and used by the closures) is
+    max(eps, eps_floor).
     superficial_inlets: {side: U} for :class:`Inlet` sides whose *superficial* velocity U
     is prescribed: the gas's inlet face velocity is the interstitial one, so at every
     coupling step it is reset to U / eps of the adjacent cell (the porous continuity flux
@@ -376,7 +377,8 @@ class CoupledGas:
                       "n_low_porosity_cells": 0.0, "n_clipped_cells": 0.0, "max_drag_force": 0.0}
         # the gas steps of this run (not of a run resumed from): run_summary() logs them
         self._run_stats = {"steps": 0, "its_sum": 0, "its_max": 0, "res_max": 0.0, "defect_max": 0.0,
-                           "cfl_max": 0.0}
+                           "cfl_max": 0.0, "low_steps": 0, "low_cells_max": 0, "low_min": math.inf,
+                           "low_where": None}
         self.last_exchange: dict = {}
         self._ws: dict = {}  # MappingPlan work arrays, reused between coupling steps
         self._superficial: dict = {}
@@ -704,12 +706,16 @@ class CoupledGas:
         return out
 
     def _report_low(self, por):
+        """Count a gas step with cells below ``eps_min``: no log line per step (dense packing in
+        single cells is expected, at a feed lattice or a pile against a wall), the run's counts
+        go into the end-of-run summary (:meth:`run_summary`)."""
         self._low_reports += 1
-        if self._low_reports <= 10 or self._low_reports % 100 == 0:
-            self.log.warning("porosity below %.2g in %d gas cells (minimum %.3g in cell %s, %d cells below 0) "
-                             "at t = %.6g s%s", self.eps_min, por.n_low, por.eps_min_found, por.where,
-                             por.n_negative, self.system.time,
-                             "" if self.eps_floor is None else f"; the gas uses max(eps, {self.eps_floor:g})")
+        st = self._run_stats
+        st["low_steps"] += 1
+        st["low_cells_max"] = max(st["low_cells_max"], int(por.n_low))
+        if por.eps_min_found < st["low_min"]:
+            st["low_min"] = float(por.eps_min_found)
+            st["low_where"] = (tuple(int(i) for i in por.where), float(self.system.time))
 
     # ------------------------------------------------------------------ output
     def gas_momentum(self) -> np.ndarray:
@@ -795,18 +801,25 @@ class CoupledGas:
     # ------------------------------------------------------------------ diagnostics
     def run_stats(self) -> dict:
         """The gas steps of this run: ``gas_steps``, ``gas_cg_iterations_mean`` and ``_max``,
-        ``gas_pressure_residual_max`` (relative), ``gas_mass_defect_max``, ``gas_cfl_max``
-        (the run stores them in results.h5's metadata, the comparison report shows them)."""
+        ``gas_pressure_residual_max`` (relative), ``gas_mass_defect_max``, ``gas_cfl_max``, and
+        the porosity below ``eps_min``: ``gas_low_porosity_steps`` (gas steps with such cells),
+        ``gas_low_porosity_cells_max`` (most such cells in one step), ``gas_low_porosity_min``
+        (the lowest porosity in them, NaN if none) (the run stores them in results.h5's
+        metadata, the comparison report shows the solver's)."""
         st = self._run_stats
         n = st["steps"]
         return {"gas_steps": n, "gas_cg_iterations_mean": st["its_sum"] / n if n else math.nan,
                 "gas_cg_iterations_max": st["its_max"], "gas_pressure_residual_max": st["res_max"],
-                "gas_mass_defect_max": st["defect_max"], "gas_cfl_max": st["cfl_max"]}
+                "gas_mass_defect_max": st["defect_max"], "gas_cfl_max": st["cfl_max"],
+                "gas_low_porosity_steps": st["low_steps"], "gas_low_porosity_cells_max": st["low_cells_max"],
+                "gas_low_porosity_min": st["low_min"] if st["low_steps"] else math.nan}
 
     def run_summary(self) -> str | None:
         """One log line on the gas steps of this run (None before the first): their number,
         the pressure solve's CG iterations (mean, max) and largest relative residual against
-        its tolerance, the largest mass-balance defect and the largest Courant number."""
+        its tolerance, the largest mass-balance defect and the largest Courant number; and,
+        when cells fell below ``eps_min``, in how many gas steps, how many cells at most and the
+        lowest porosity with its cell and time (counted silently during the run)."""
         st = self.run_stats()
         if st["gas_steps"] == 0:
             return None
@@ -815,11 +828,20 @@ class CoupledGas:
         stop = "" if tol is None else f" (stops at {tol:.0e}"
         if stop and gas.pressure_solver == "mg" and gas.defect_tol > 0:
             stop += f" or once the defect is sure to be below {gas.defect_tol:.0e}"
-        return (f"gas: {st['gas_steps']} steps; pressure solve ({gas.pressure_solver}): CG iterations mean "
+        line = (f"gas: {st['gas_steps']} steps; pressure solve ({gas.pressure_solver}): CG iterations mean "
                 f"{st['gas_cg_iterations_mean']:.2f}, max {st['gas_cg_iterations_max']}; relative residual at most "
                 f"{st['gas_pressure_residual_max']:.2e}" + (stop + ")" if stop else "")
                 + f"; mass-balance defect at most {st['gas_mass_defect_max']:.2e}; Courant number at most "
                 f"{st['gas_cfl_max']:.3g}")
+        if st["gas_low_porosity_steps"]:
+            where, t = self._run_stats["low_where"]
+            k = st["gas_low_porosity_cells_max"]
+            line += (f"; porosity below {self.eps_min:g} in {st['gas_low_porosity_steps']} of the gas steps (at most "
+                     f"{k} cell{'' if k == 1 else 's'} at once, lowest {st['gas_low_porosity_min']:.3g} in "
+                     f"cell {where} at t = {t:.4g} s; expected where particles pack densely in single cells, "
+                     "as at a feed lattice or a pile against a wall"
+                     + (")" if self.eps_floor is None else f"; the gas used max(eps, {self.eps_floor:g}))"))
+        return line
 
     def diagnostics(self) -> list[str]:
         s = self.system

@@ -397,12 +397,12 @@ def _interp_kernel(a0, a1, w0, w1, field, out):
 
 # ---- fused kernels of the coupling step ----
 #
-# Round 1 stored the per-axis weights of all four locations ((4, n, 3) int64 node indices and
-# float64 weights, 11.6 MB for 30k particles) and read them back in every kernel; round 2
-# recomputed them inline in each kernel (about 0.67 ms per kernel for 30k particles); now
-# they are computed once (``fpar (4, 3, 4)`` = (x0, h, smin, smax) and ``ipar (4, 3, 5)`` =
-# (n, per, lo, hi, bmin) per location (index of ``LOCATIONS``) and axis, read into locals
-# outside the particle loop) and stored compactly (2.9 MB for 30k particles).
+# The per-axis weights are computed once per plan (``fpar (4, 3, 4)`` = (x0, h, smin, smax)
+# and ``ipar (4, 3, 5)`` = (n, per, lo, hi, bmin) per location (index of ``LOCATIONS``) and
+# axis, read into locals outside the particle loop) and stored compactly (2.9 MB for 30k
+# particles).  Why: storing the full weights of all four locations ((4, n, 3) int64 node
+# indices and float64 weights, 11.6 MB for 30k particles) made every kernel that read them
+# back memory-bound, and recomputing them inline in each kernel cost about 0.67 ms per kernel.
 
 
 @kernel(inline="always")

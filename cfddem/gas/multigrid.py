@@ -67,7 +67,7 @@ increasing fine index).  Every inner product is a serial sum of per-plane partia
 (:func:`_rowdot`, a fixed order).  So the iterates are bit-identical for any thread count
 and for the serial path (tested with 1, 2, 3 threads).  Measured on the shared 2-core machine
 (load 8-9): 2 threads are 7-10 % slower than 1 on the chute grid, up to 1.19x faster on
-64^3 (docs/gas.md, "Cost").  The set-up's coarsening and the Chebyshev smoother are serial.
+64^3 (docs/gas.md, "Threads").  The set-up's coarsening and the Chebyshev smoother are serial.
 
 Precision (``precision``, default "single"): the V-cycle (its operator, transfer weights,
 coarsest Cholesky factor and work arrays) runs in float32, converted from the float64 set-up
@@ -75,10 +75,10 @@ at every ``set_coefficients``; CG's operator, residual, iterate, direction and i
 products stay float64 and it stops on the float64 true residual, so the accuracy of the
 solution is unchanged (only the preconditioner is approximated).  Half the memory traffic
 and twice the SIMD lanes: on the chute (16 x 15 x 150) the gas step costs 15-18 % less CPU
-with the same CG iterations (5.1 / 7.0) and defects (docs/gas.md, "Round 6").  The float32
+with the same CG iterations (5.1 / 7.0) and defects.  The float32
 V-cycle is symmetric only to its rounding (about 1e-8 relative, measured); plain CG with
 it showed no loss of iterations, so no flexible (Polak-Ribiere) beta is used.
-"double": the float64 V-cycle of earlier rounds (exactly symmetric to rounding).
+"double": the float64 V-cycle (exactly symmetric to rounding).
 
 References: Trottenberg, Oosterlee & Schueller, *Multigrid* (2001), ch. 2-5; Mohr &
 Wienands, Comput. Vis. Sci. 7 (2004) 129 (cell-centred transfers); Tatebe, Copper Mountain

@@ -100,7 +100,7 @@ class GasSolver:
         successive gas steps are anti-correlated (the sluice feeds a lattice layer every 5 gas
         steps, and each pulse is undone in the next step): the plain previous increment starts
         CG from a residual 1.7x ||b||, worse than zero, and costs 0.7 more iterations per
-        solve than the scaled one (docs/gas.md, "Round 7").
+        solve than the scaled one (docs/gas.md, "Pressure solver").
     viscosity: "explicit" (forward Euler, viscous step limit) or "implicit" (semi-implicit:
     backward Euler for the Laplacian part of the stress divergence, the cross-derivative
     remainder explicit; solved per component by Jacobi-preconditioned CG to

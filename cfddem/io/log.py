@@ -1,4 +1,5 @@
-"""Run log (``OUT/run.log``) and a one-line progress display."""
+"""Run log (``OUT/run.log``), the rate limit on repeated warnings, and a one-line progress
+display."""
 
 from __future__ import annotations
 
@@ -19,7 +20,8 @@ def setup_run_logger(out_dir, stderr: bool = False, level: int = logging.INFO,
 
     Handlers installed by an earlier call are replaced, so calling it once per run in the
     same process (tests, sweeps) does not duplicate lines. Modules log through child
-    loggers (``logging.getLogger("cfddem.gas")``), which propagate here.
+    loggers (``logging.getLogger("cfddem.gas")``), which propagate here. Repeated warnings
+    are rate-limited (:class:`RepeatLimit`); :func:`log_repeat_totals` logs their totals.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -30,18 +32,90 @@ def setup_run_logger(out_dir, stderr: bool = False, level: int = logging.INFO,
             h.close()
     logger.setLevel(level)
     logger.propagate = False
+    repeats = RepeatLimit()  # one per run: the end-of-run counts are this run's
     fh = logging.FileHandler(out / "run.log", mode="a", encoding="utf-8")
     fh.setFormatter(logging.Formatter(_FMT))
     fh.setLevel(level)
-    fh._cfddem_run = True
-    logger.addHandler(fh)
+    handlers = [fh]
     if stderr:
         sh = logging.StreamHandler(sys.stderr)
         sh.setFormatter(logging.Formatter("%(levelname)s: %(message)s"))
         sh.setLevel(logging.INFO)
-        sh._cfddem_run = True
-        logger.addHandler(sh)
+        handlers.append(sh)
+    for h in handlers:
+        h.addFilter(repeats)
+        h._cfddem_run = True
+        logger.addHandler(h)
     return logger
+
+
+class RepeatLimit(logging.Filter):
+    """Rate limit on repeated warnings: a warning (or error) whose message template
+    (``record.msg``, the text before ``%`` formatting, with the logger's name) comes again is
+    logged at its 1st, 10th, 100th, 1000th, ... occurrence only, the repeats marked
+    ``[10th time; repeats are counted, the total is logged at the end of the run]``; the others
+    are counted. :meth:`summary_lines` (logged at the end of a run by :func:`log_repeat_totals`)
+    gives, per template seen more than once, its total and the last formatted message.
+
+    The logged lines thus grow with the logarithm of the count (a run of a million repeats
+    logs 7 lines and its total): the first occurrence shows what happened and when, the
+    decades show whether it keeps happening, the total says how often. Records below WARNING
+    pass untouched (periodic INFO lines, checkpoints and progress, are meant to repeat).
+
+    Installed on each handler of the run logger (the filters of a logger do not see records
+    of its child loggers); a record that reaches several handlers is counted once.
+    """
+
+    def __init__(self, level: int = logging.WARNING):
+        super().__init__()
+        self.level = level
+        self.counts: dict[tuple[str, str], int] = {}
+        self.last: dict[tuple[str, str], str] = {}
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        seen = getattr(record, "_cfddem_repeat", None)
+        if seen is not None:  # the same record at a second handler
+            return seen
+        if record.levelno < self.level:
+            return True
+        key = (record.name, str(record.msg))
+        n = self.counts.get(key, 0) + 1
+        self.counts[key] = n
+        self.last[key] = record.getMessage()
+        show = _is_decade(n)
+        if show and n > 1:
+            record.msg = f"{self.last[key]} [{n}th time; repeats are counted, the total is logged at " \
+                         "the end of the run]"  # n is 10, 100, ...: always "th"
+            record.args = None
+        record._cfddem_repeat = show
+        return show
+
+    def summary_lines(self) -> list[str]:
+        """One line per message template logged more than once: total, lines shown, the last."""
+        lines = []
+        for key, n in self.counts.items():
+            if n > 1:
+                shown = len(str(n))  # the decades up to n
+                lines.append(f"warning repeated {n} times in this run ({shown} logged), the last: {self.last[key]}")
+        return lines
+
+
+def _is_decade(n: int) -> bool:
+    """1, 10, 100, 1000, ...: the occurrences of a repeated warning that are logged."""
+    while n % 10 == 0:
+        n //= 10
+    return n == 1
+
+
+def log_repeat_totals(logger: logging.Logger) -> list[str]:
+    """Log (INFO) the totals of the warnings that :class:`RepeatLimit` rate-limited on this
+    run logger's handlers (nothing for a logger that :func:`setup_run_logger` did not set
+    up); returns the lines."""
+    limits = {id(f): f for h in logger.handlers for f in h.filters if isinstance(f, RepeatLimit)}
+    lines = [line for f in limits.values() for line in f.summary_lines()]
+    for line in lines:
+        logger.info(line)
+    return lines
 
 
 def _fmt_duration(s: float) -> str:

@@ -241,7 +241,7 @@ class ChuteScene(Scene):
             pressure=lambda x, y, z: rho * (g[0] * x + g[1] * y + g[2] * (z - grid.origin[2] - grid.lengths[2])),
             speed_scale=max(vin, wind, 1e-12),
             notes=[f"gas inlet velocity {vin:.4g} m/s; lid: {gcfg.lid} (max cross-wind {wind:.3g} m/s); "
-                   f"min porosity: computed at run time (cells below 0.3 are logged)"])
+                   f"min porosity: computed at run time (cells below 0.3 are counted in the end-of-run summary)"])
 
     # -------------------------------------------------------------- during a run
     def make_inlet(self):

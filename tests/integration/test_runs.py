@@ -213,12 +213,10 @@ def test_blow_up_is_diagnosed(tmp_path):
     assert "diagnostic" in m and m["diagnostic"]["pos"].shape[1] == 3
 
 
-def test_particle_through_a_wall_is_diagnosed(tmp_path):
-    d = tmp_path / "tunnel"
-    d.mkdir()
-    (d / "case.toml").write_text("""
+# a 5 cm box without gravity for a few particles given one by one, a forced large time step
+FREE_BOX = """
 [time]
-end_time = 0.01
+end_time = {end}
 dt = 2e-4
 force = true
 [output]
@@ -231,16 +229,42 @@ hi = [0.05, 0.05, 0.05]
 [gravity]
 g = 0.0
 [particles]
-max_overlap_ratio = 1.0
-initial = [{pos = [0.025, 0.005, 0.025], radius = 0.0015, vel = [0, -20.0, 0]}]
+{particles}
 [measurements]
 enabled = false
-""")
+{extra}"""
+
+
+def free_box_case(d, particles, end, extra=""):
+    d.mkdir()
+    (d / "case.toml").write_text(FREE_BOX.format(end=end, particles=particles, extra=extra))
+    return d
+
+
+def test_particle_through_a_wall_is_diagnosed(tmp_path):
+    d = free_box_case(tmp_path / "tunnel", "max_overlap_ratio = 1.0\n"
+                      "initial = [{pos = [0.025, 0.005, 0.025], radius = 0.0015, vel = [0, -20.0, 0]}]", 0.01)
     p = subprocess.run(CLI + ["run", str(d), "--out", str(tmp_path / "o"), "--quiet"], capture_output=True,
                        text=True, timeout=300)
     assert p.returncode == 3, p.stderr
     assert "went through wall 'y-'" in p.stderr and "time step too large" in p.stderr
     assert len(p.stderr.strip().splitlines()) == 1
+
+
+def test_repeated_lost_particle_warning_is_rate_limited(tmp_path):
+    """12 particles leave the box one by one (one lost-particle warning per exit/lost check,
+    every 1 ms): run.log shows the 1st and the 10th and, at the end, the total."""
+    # outside the x+ wall, each crossing the lost margin (x = 0.055 m) 1.5 ms after the one before
+    parts = ", ".join(f"{{pos = [0.052, {0.005 + 0.01 * (k % 4):.3f}, {0.01 + 0.015 * (k // 4):.3f}], "
+                      f"radius = 0.0015, vel = [{2.0 / (k + 1):.6f}, 0, 0]}}" for k in range(12))
+    d = free_box_case(tmp_path / "leak", f"initial = [{parts}]", 0.02, extra="[exit]\nlost_margin = 0.005\n")
+    s = Simulation(load_case(d), tmp_path / "o", echo=False, progress=False).run()
+    assert s.status == "done" and s.n_particles == 0
+    lines = [ln for ln in (tmp_path / "o" / "run.log").read_text().splitlines() if "left the domain" in ln]
+    assert len(lines) == 3, lines
+    assert "WARNING" in lines[0] and ": 1 particle(s) left the domain and were removed as lost" in lines[0]
+    assert "WARNING" in lines[1] and "[10th time; repeats are counted" in lines[1]
+    assert "INFO" in lines[2] and "warning repeated 12 times in this run (2 logged), the last: t = 0.0" in lines[2]
 
 
 def test_checkpoint_every_steps(tmp_path):

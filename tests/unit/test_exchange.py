@@ -1,9 +1,12 @@
 """Unit tests of cfddem.coupling.exchange: exact momentum exchange, phase counter, restart."""
 
+import logging
+
 import numpy as np
 import pytest
 
 from cfddem.coupling.exchange import CoupledGas, CouplingStatus
+from cfddem.coupling.mapping import porosity
 from cfddem.gas import NoSlip, Periodic, StaggeredGrid
 from cfddem.particles.contact import LinearContact
 from cfddem.particles.system import ParticleSystem
@@ -112,6 +115,10 @@ def test_series_row_vtk_fields_and_diagnostics():
         assert k in row and np.isfinite(row[k])
     assert 0.9 < row["min_porosity"] < 1.0
     assert row["drag_power"] > 0
+    # no cell below eps_min: the end-of-run line says nothing about the porosity
+    st = cg.run_stats()
+    assert st["gas_steps"] == 2 and st["gas_low_porosity_steps"] == 0 and np.isnan(st["gas_low_porosity_min"])
+    assert "porosity" not in cg.run_summary()
     v = cg.vtk_fields()
     assert v["shape"] == (4, 4, 4)
     assert v["cell_data"]["velocity"].shape == (4, 4, 4, 3)
@@ -146,9 +153,33 @@ def test_negative_porosity_is_reported_not_clipped():
     st = cg.advance(5)
     assert isinstance(st, CouplingStatus) and not st.ok
     assert "gas cell (1, 1, 1)" in st.message and "porosity" in st.message
-    cg2 = CoupledGas(sys_, grid, PERIODIC, rho=1.2, mu=1.8e-5, eps_floor=0.2)
-    assert cg2.advance(5).ok
+    # with a floor the run goes on; the cells below eps_min (0.3) are counted silently and
+    # reported once, in the end-of-run summary line
+    records = []
+    log = logging.getLogger("test_exchange.low_porosity")
+    log.addHandler(_Collect(records))
+    cg2 = CoupledGas(sys_, grid, PERIODIC, rho=1.2, mu=1.8e-5, eps_floor=0.2, log=log)
+    assert cg2.advance(50).ok  # 5 gas steps, the particle at rest in gas at rest
     assert cg2.series_row()["n_clipped_cells"] >= 1
+    assert records == []
+    ref = porosity(grid, sys_.pos, sys_.radius, periodic=(True, True, True))
+    assert ref.n_low == 1 and ref.eps_min_found < 0.0  # the particle centred in cell (1, 1, 1)
+    st = cg2.run_stats()
+    assert (st["gas_steps"], st["gas_low_porosity_steps"], st["gas_low_porosity_cells_max"]) == (5, 5, ref.n_low)
+    assert st["gas_low_porosity_min"] == pytest.approx(ref.eps_min_found, rel=1e-12)
+    assert cg2.run_summary().endswith(
+        "; porosity below 0.3 in 5 of the gas steps (at most 1 cell at once, lowest "
+        f"{ref.eps_min_found:.3g} in cell (1, 1, 1) at t = 0 s; expected where particles pack densely in single "
+        "cells, as at a feed lattice or a pile against a wall; the gas used max(eps, 0.2))")
+
+
+class _Collect(logging.Handler):
+    def __init__(self, out):
+        super().__init__(logging.DEBUG)
+        self.out = out
+
+    def emit(self, record):
+        self.out.append(record)
 
 
 def test_bad_arguments():
