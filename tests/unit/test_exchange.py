@@ -162,7 +162,7 @@ def test_negative_porosity_is_reported_not_clipped():
     assert cg2.advance(50).ok  # 5 gas steps, the particle at rest in gas at rest
     assert cg2.series_row()["n_clipped_cells"] >= 1
     assert records == []
-    ref = porosity(grid, sys_.pos, sys_.radius, periodic=(True, True, True))
+    ref = porosity(grid, sys_.pos, sys_.radius, boundaries=(True, True, True))
     assert ref.n_low == 1 and ref.eps_min_found < 0.0  # the particle centred in cell (1, 1, 1)
     st = cg2.run_stats()
     assert (st["gas_steps"], st["gas_low_porosity_steps"], st["gas_low_porosity_cells_max"]) == (5, 5, ref.n_low)
