@@ -69,12 +69,9 @@ class Run:
             self.kind = "chute"
         elif self.silo and "mass_flow_rate" in self.meas:
             self.kind = "silo"
-        elif "chute" in self.meas:
-            raise CaseError("OUT", f"{self.folder}: the run holds no time-averaged chute measurements "
-                                   "(did it reach measurements.start_time?)")
         else:
-            raise CaseError("OUT", f"{self.folder}: the run holds neither chute measurements nor a silo "
-                                   "discharge (/measurements/chute or /measurements/silo)")
+            raise CaseError("OUT", f"{self.folder}: the run holds no time-averaged chute measurements "
+                                   "(did it reach measurements.start_time?) and no silo discharge (/measurements/silo)")
         self.gas = self.meas.get("gas", {})
         gas_on = bool(self.config.get("gas", {}).get("enabled", False))
         self.label = label or ("with gas" if gas_on else "no gas")
