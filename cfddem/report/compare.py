@@ -373,10 +373,8 @@ def _silo_report(ra, rb, out: Path) -> dict:
           f"- discharged mass: A {1e3 * da['discharged_mass']:.4g} g, B {1e3 * db['discharged_mass']:.4g} g; "
           f"A {clog(da)}, B {clog(db)}",
           f"- bulk density at the gate opening: A {da['bulk_density']:.1f} kg/m3, B {db['bulk_density']:.1f} kg/m3 "
-          f"(gate at A {da['gate_open_time']:.4g} s, B {db['gate_open_time']:.4g} s)",
-          f"- wall time: A {ra.wall_time:.1f} s, B {rb.wall_time:.1f} s, ratio B/A = {summary['wall_time_ratio']:.3f}"]
-    md += [f"- {line}" for line in (ra.gas_solver_line(), rb.gas_solver_line()) if line]
-    _write_report(md, runs, figs, out)
+          f"(gate at A {da['gate_open_time']:.4g} s, B {db['gate_open_time']:.4g} s)"]
+    _write_report(md, runs, figs, out, summary)
     return summary
 
 
@@ -420,17 +418,17 @@ def compare_runs(a: str | Path, b: str | Path, out: str | Path, labels=(None, No
     md = [f"# {ra.label} against {rb.label}", "",
           f"- A: `{ra.folder}` ({ra.label}, {ra.rpm:g} rpm); B: `{rb.folder}` ({rb.label}, {rb.rpm:g} rpm)",
           f"- mean streamwise particle velocity over the last {END_LENGTH:g} m: A {va:.4f} m/s, "
-          f"B {vb:.4f} m/s, relative difference (B - A)/A = {100 * summary['relative_difference_end']:+.2f} %",
-          f"- wall time: A {ra.wall_time:.1f} s, B {rb.wall_time:.1f} s, ratio B/A = {summary['wall_time_ratio']:.3f}"]
-    md += [f"- {line}" for line in (ra.gas_solver_line(), rb.gas_solver_line()) if line]
-    _write_report(md, runs, figs, out)
+          f"B {vb:.4f} m/s, relative difference (B - A)/A = {100 * summary['relative_difference_end']:+.2f} %"]
+    _write_report(md, runs, figs, out, summary)
     return summary
 
 
-def _write_report(md: list, runs, figs: dict, out: Path) -> None:
-    """The cost table and the figures after the lines ``md``; report.md and the self-contained
-    report.html."""
+def _write_report(md: list, runs, figs: dict, out: Path, summary: dict) -> None:
+    """The wall times, the gas solver lines, the cost table and the figures after the lines
+    ``md``; report.md and the self-contained report.html."""
     ra, rb = runs
+    md.append(f"- wall time: A {ra.wall_time:.1f} s, B {rb.wall_time:.1f} s, ratio B/A = {summary['wall_time_ratio']:.3f}")
+    md += [f"- {line}" for line in (ra.gas_solver_line(), rb.gas_solver_line()) if line]
     md.append("")
     md.append("| cost [s] | " + " | ".join(r.label for r in runs) + " |")
     md.append("|---|---|---|")
