@@ -305,6 +305,11 @@ def _sl(d, s):
     return tuple(out)
 
 
+def _layer(a, d, i):
+    """The layer i along axis d of a 3-D array (a view over the other two axes in order)."""
+    return a[_sl(d, i)]
+
+
 class CoupledGas:
     """Gas solver plus the momentum exchange with a ParticleSystem (see module docstring).
 
@@ -393,6 +398,19 @@ class CoupledGas:
         # inlets: the sides whose boundary face is not a gas unknown)
         self._bside = [tuple(bool(v) for v in pair) for pair in self.gas.bc.half_cell]
         self._has_boundary = [a or b for a, b in self._bside]
+        # patched sides with a half-cell on some face cells only: (axis, lower) -> boolean
+        # array over the side's face cells (tangential axes in increasing order) without one
+        self._no_half = {}
+        for c in range(3):
+            for lower, side in ((True, "xyz"[c] + "-"), (False, "xyz"[c] + "+")):
+                m = self.gas.bc.cell_mask(side, "half_cell_source", True)
+                if isinstance(m, np.ndarray) and m.any() and not m.all():
+                    self._no_half[(c, lower)] = ~m
+        # sides whose particle rule is "leave": a particle whose centre lies beyond one takes
+        # no part in the exchange (axis, lower, plane coordinate)
+        self._leave = [(c, side[1] == "-", grid.origin[c] + (0.0 if side[1] == "-" else grid.lengths[c]))
+                       for c in range(3) for side in ("xyz"[c] + "-", "xyz"[c] + "+")
+                       if self.gas.bc.particle_rules[2 * c + (side[1] == "+")] == "leave"]
         self._g = tuple(float(v) for v in gravity)
         # parameters of _pressure_fields_kernel: spacing, updated face range, periodic, boundary sides
         fr = self.gas.bc.face_range
@@ -457,6 +475,9 @@ class CoupledGas:
         mass = np.ascontiguousarray(sys_.mass)
         plan = MappingPlan(grid, pos, self.gas.bc, workspace=self._ws)  # the BCs' particle rules
         vol = 4.0 / 3.0 * np.pi * rad**3
+        gone = self._left_the_gas(pos) if self._leave and n else None
+        if gone is not None:
+            vol[gone] = 0.0  # no volume: no porosity, no pressure force (and no drag: below)
         # --- 1. porosity ------------------------------------------------------------------
         por = plan.porosity(rad, self.eps_min, volume=vol)
         eps = por.eps
@@ -489,6 +510,8 @@ class CoupledGas:
             Keff = self._work("_Keff", (n,))
             _keff_kernel(F, eps_a, d, mass, 3.0 * np.pi * self.mu, dtg, 1 if self.drag_treatment == "implicit" else 0,
                          Keff)
+            if gone is not None:
+                Keff[gone] = 0.0
             pairs = plan.deposit_drag_pairs(Keff, vel)  # (D(K_eff), D(K_eff v_c)) per face grid
             drag_K = tuple(self._work("_dK" + loc, a.shape[:3]) for loc, a in zip(_LOC, pairs))
             drag_Up = tuple(self._work("_dUp" + loc, a.shape[:3]) for loc, a in zip(_LOC, pairs))
@@ -559,6 +582,14 @@ class CoupledGas:
             self.log.warning("gas time step dt_g = %.3g s exceeds the gas's stable step %.3g s (CFL %.3g)",
                              dtg, gas.max_stable_dt(), info.cfl)
         return None
+
+    def _left_the_gas(self, pos):
+        """Boolean mask of the particles whose centre lies beyond a side with particle rule
+        "leave" (they left the gas domain: no volume, drag or pressure force), None if none."""
+        out = np.zeros(pos.shape[0], bool)
+        for c, lower, x in self._leave:
+            out |= (pos[:, c] < x) if lower else (pos[:, c] > x)
+        return out if out.any() else None
 
     def _work(self, key, shape):
         """A work array kept between coupling steps (reused when the shape matches; first
@@ -651,8 +682,16 @@ class CoupledGas:
             lo, hi = self.gas.bc.face_range[c]
             for lower, on in zip((True, False), self._bside[c]):
                 if on:
+                    no_half = self._no_half.get((c, lower))
+                    T = S
+                    if no_half is not None:  # a patched side: only on its face cells with a half-cell
+                        T = self._work("_T" + _LOC[c], S.shape)
+                        T.fill(0.0)
                     _half_cell_source_kernel(p, e, int(grid.halo), *_UNIT[c], 1 if lower else n - 1, 0 if lower else n - 1,
-                                             lo, hi, float(grid.spacing[c]), self.rho * self._g[c], self.HALF_CELL_SOLID, S)
+                                             lo, hi, float(grid.spacing[c]), self.rho * self._g[c], self.HALF_CELL_SOLID, T)
+                    if no_half is not None:
+                        _layer(T, c, 1 if lower else n - 1)[no_half] = 0.0
+                        S += T
             out.append(S)
         return tuple(out)
 
@@ -674,6 +713,8 @@ class CoupledGas:
         e = np.ascontiguousarray(gas.eps.data, dtype=np.float64)
         part = self._work("_Gpart", (grid.shape[0], 3))
         _pressure_fields_kernel(p, e, int(grid.halo), *self._gparams, G, Gb, part, solid)
+        for (c, lower), no_half in self._no_half.items():  # patched sides: no half-cell over the outlet part
+            _layer(Gb[..., c], c, 0 if lower else grid.shape[c] - 1)[no_half] = 0.0
         return G, Gb, solid
 
     def _centre_from_faces(self, grads, boundary=False):
@@ -690,6 +731,9 @@ class CoupledGas:
                     G[_sl(c, 0)] += 0.5 * g[_sl(c, 1)]
                 if hi:
                     G[_sl(c, n - 1)] += 0.5 * g[_sl(c, n - 1)]
+                for (cc, lower), no_half in self._no_half.items():
+                    if cc == c:
+                        _layer(G, c, 0 if lower else n - 1)[no_half] = 0.0
                 out.append(G)
             return out
         out = []

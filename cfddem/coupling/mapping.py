@@ -43,6 +43,11 @@ of walls and periodic axes, three periodic flags):
   - particle centres outside the box are clamped onto the side (the count is reported by
     :func:`porosity` as ``n_outside``).
 
+* ``"leave"`` (a side that particles leave the gas through, e.g. the silo's outlet plane):
+  mapped as "fold"; the exchange (:class:`cfddem.coupling.exchange.CoupledGas`) gives a
+  particle whose centre lies beyond the side no volume, no drag and no pressure force: it has
+  left the gas domain.
+
 * ``"wrap"`` (periodic sides, in pairs): node n is node 0.  Face grids keep their ``n+1``
   entries along a periodic normal axis; deposition writes faces 0..n-1 only (face n stays 0)
   and interpolation reads face 0 for face n, so the pair stays exactly adjoint.
@@ -156,7 +161,7 @@ def as_grid_spec(grid) -> GridSpec:
 
 
 SIDES = ("x-", "x+", "y-", "y+", "z-", "z+")
-PARTICLE_RULES = ("fold", "wrap")
+PARTICLE_RULES = ("fold", "leave", "wrap")
 
 
 def _side_rules(boundaries) -> tuple:
@@ -256,7 +261,8 @@ def _axes(spec: GridSpec, location: str, rules: tuple) -> _Axes:
             lo[a], hi[a], bmin[a], nbin[a] = 0, na - 1, 0, na
             smin[a], smax[a] = 0.0, float(na)
             continue
-        # "fold" on both sides (the only other rule)
+        # "fold" on both sides ("leave" maps as "fold": the exchange gives no volume or force
+        # to a particle beyond a "leave" side)
         if face:
             lo[a], hi[a], bmin[a], nbin[a] = 1, na - 1, 0, na
             smin[a], smax[a] = 0.0, float(na)

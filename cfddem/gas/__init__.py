@@ -3,11 +3,11 @@
 See docs/gas.md.  Public API::
 
     from cfddem.gas import (StaggeredGrid, Field, GasSolver, GasStepInfo, NoSlip, FreeSlip,
-                            Velocity, Inlet, LidCrossWind, PressureOutlet, Periodic,
+                            Velocity, Inlet, LidCrossWind, PressureOutlet, Patched, Periodic,
                             MGPressureSolver, PressureSolver)
 """
 
-from cfddem.gas.boundaries import (BC, BoundarySet, FreeSlip, Inlet, LidCrossWind, NoSlip, Periodic,
+from cfddem.gas.boundaries import (BC, BoundarySet, FreeSlip, Inlet, LidCrossWind, NoSlip, Patched, Periodic,
                                    PressureOutlet, Velocity)
 from cfddem.gas.grid import Field, StaggeredGrid
 from cfddem.gas.multigrid import MGPressureSolver
@@ -15,4 +15,4 @@ from cfddem.gas.pressure import PressureSolver
 from cfddem.gas.solver import GasSolver, GasStepInfo
 
 __all__ = ["BC", "BoundarySet", "Field", "FreeSlip", "GasSolver", "GasStepInfo", "Inlet", "LidCrossWind",
-           "MGPressureSolver", "NoSlip", "Periodic", "PressureOutlet", "PressureSolver", "StaggeredGrid", "Velocity"]
+           "MGPressureSolver", "NoSlip", "Patched", "Periodic", "PressureOutlet", "PressureSolver", "StaggeredGrid", "Velocity"]

@@ -115,7 +115,7 @@ RULES = {
     "normal_rule": ("prescribed", "solved", "periodic"),
     "tangential_rule": ("prescribed", "slip", "zero_gradient", "periodic"),
     "pressure_rule": ("neumann", "dirichlet", "periodic"),
-    "particle_rule": ("fold", "wrap"),
+    "particle_rule": ("fold", "leave", "wrap"),
     "half_cell_source": (True, False),
 }
 
@@ -125,6 +125,9 @@ def check_rules(side: str, bc: BC) -> None:
     them or in none; a solved normal face with a Dirichlet pressure, a prescribed one with a
     Neumann pressure; the half-cell source exactly where the normal face is prescribed."""
     key = f"gas.bcs.{side}"
+    if isinstance(bc, Patched):
+        bc.check(side)
+        return
     for name, allowed in RULES.items():
         if getattr(bc, name) not in allowed:
             raise CaseError(key, f"{type(bc).__name__}.{name} = {getattr(bc, name)!r}; allowed: {allowed}")
@@ -244,10 +247,107 @@ class Periodic(BC):
     half_cell_source = False
 
 
+@dataclass(frozen=True)
+class Patched(BC):
+    """One side carrying different conditions on different face cells: ``default`` everywhere
+    except on the face cells whose centres lie in a patch's box, which take that patch's
+    condition (a later patch wins where patches overlap).
+
+    ``patches``: a sequence of ``(box, bc)``, ``box = (lo, hi)`` two 3-vectors (m; the
+    coordinate along the side's normal is ignored, +-inf for unbounded), ``bc`` any condition
+    that is not periodic and not itself patched.  Every rule of the side becomes per face cell
+    (:meth:`BoundarySet.parts`): the halo fill, the momentum update (the boundary faces of
+    the solved part are gas unknowns, those of the prescribed part keep their value), the
+    pressure equation (Dirichlet on the faces of the Dirichlet part, Neumann elsewhere), the
+    exchange's boundary half-cell (where the part declares one).  A tangential velocity point
+    on the edge between two parts takes the rule of the part listed first (the default, then
+    the patches in order).  ``particle_rule`` is one for the whole side (the mapping's
+    weights are per side): "fold" or "leave".
+
+    Example: the silo's bottom, no-slip plates with a pressure outlet over the slot::
+
+        Patched(default=NoSlip(), patches=[((xa, -inf, -inf), (xb, inf, inf)), PressureOutlet(p=p0))])
+    """
+
+    default: BC = field(default_factory=lambda: NoSlip())
+    patches: tuple = ()
+    particle_rule: str = "fold"
+    kind = "patched"
+    # per face cell (BoundarySet.parts); these class values are never read for a Patched side
+    normal_rule = "per cell"
+    tangential_rule = "per cell"
+    pressure_rule = "per cell"
+    half_cell_source = "per cell"
+
+    def bcs(self) -> list:
+        """The conditions of the side, the default first."""
+        return [self.default] + [bc for _, bc in self.patches]
+
+    @property
+    def prescribes_velocity(self) -> bool:
+        return any(bc.prescribes_velocity for bc in self.bcs())
+
+    @property
+    def periodic(self) -> bool:
+        return False
+
+    def check(self, side: str) -> None:
+        """CaseError unless every part is a valid non-periodic, non-patched condition, the boxes
+        are pairs of 3-vectors and the side's particle rule is "fold" or "leave"."""
+        key = f"gas.bcs.{side}"
+        for i, item in enumerate(self.patches):
+            try:
+                box, bc = item
+                lo, hi = (np.asarray(v, dtype=float) for v in box)
+            except (TypeError, ValueError):
+                raise CaseError(key, f"patch {i}: need ((lo, hi), bc), got {item!r}") from None
+            if lo.shape != (3,) or hi.shape != (3,):
+                raise CaseError(key, f"patch {i}: the box corners must be 3-vectors, got {box!r}")
+        for bc in self.bcs():
+            if not isinstance(bc, BC) or isinstance(bc, Patched):
+                raise CaseError(key, f"a patched side's parts must be plain conditions, got {bc!r}")
+            if bc.periodic:
+                raise CaseError(key, "a patched side cannot have a periodic part")
+            check_rules(side, bc)
+        if self.particle_rule not in ("fold", "leave"):
+            raise CaseError(key, f"Patched.particle_rule = {self.particle_rule!r}; allowed: ('fold', 'leave')")
+
+    def labels(self, side: str, grid: StaggeredGrid) -> np.ndarray:
+        """The part index (0 the default, k the k-th patch) of each face cell of the side, an
+        int array over the two tangential axes in increasing order (the last patch wins)."""
+        d = "xyz".index(side[0])
+        e1, e2 = (e for e in range(3) if e != d)
+        c1 = grid.coords("ccc", e1, with_halo=False)[:, None]
+        c2 = grid.coords("ccc", e2, with_halo=False)[None, :]
+        lab = np.zeros((c1.size, c2.size), dtype=np.int64)
+        for k, ((lo, hi), _) in enumerate(self.patches, start=1):
+            inside = (c1 >= lo[e1]) & (c1 <= hi[e1]) & (c2 >= lo[e2]) & (c2 <= hi[e2])
+            lab[inside] = k
+        return lab
+
+
 def _sl(d: int, idx) -> tuple:
     s = [slice(None)] * 3
     s[d] = idx
     return tuple(s)
+
+
+def _ix(d: int, idx, blk) -> tuple:
+    """``_sl(d, idx)`` restricted to the block ``blk`` (slices of the other two axes in
+    increasing order; None: all)."""
+    if blk is None:
+        return _sl(d, idx)
+    s = [None, None, None]
+    s[d] = idx
+    s[[e for e in range(3) if e != d][0]], s[[e for e in range(3) if e != d][1]] = blk
+    return tuple(s)
+
+
+def _cut(a, d: int, blk):
+    """The block ``blk`` of a boundary-value array (axis d of size 1); a itself for None."""
+    if a is None or blk is None:
+        return a
+    return a[_ix(d, slice(None), blk)]
 
 
 @dataclass
@@ -281,6 +381,19 @@ class BoundarySet:
                 raise CaseError(f"gas.bcs.{s}", f"not a boundary condition: {bc!r}")
             check_rules(s, bc)
         self.kinds = {s: self.bcs[s].kind for s in SIDES}
+        # per side: [(label, bc)] and the part label of each face cell (None: one part)
+        self._parts = {}
+        self._labels = {}
+        for s in SIDES:
+            bc = self.bcs[s]
+            if isinstance(bc, Patched):
+                lab = bc.labels(s, g)
+                present = set(int(k) for k in np.unique(lab))  # parts that cover no face cell are left out
+                self._parts[s] = [(k, b) for k, b in enumerate(bc.bcs()) if k in present]
+                self._labels[s] = lab
+            else:
+                self._parts[s] = [(0, bc)]
+                self._labels[s] = None
         per = []
         for d in range(3):
             lo, hi = self.bcs[SIDES[2 * d]].periodic, self.bcs[SIDES[2 * d + 1]].periodic
@@ -295,14 +408,47 @@ class BoundarySet:
             if self.periodic[d]:
                 self.face_range.append((0, n))
             else:
-                lo = 0 if self.bcs[lo_side].normal_rule == "solved" else 1
-                hi = n + 1 if self.bcs[hi_side].normal_rule == "solved" else n
+                lo = 0 if self._any(lo_side, "normal_rule", "solved") else 1
+                hi = n + 1 if self._any(hi_side, "normal_rule", "solved") else n
                 self.face_range.append((lo, hi))
-        self.pressure_bc = {s: self.bcs[s].pressure_rule for s in SIDES}
+        self.pressure_bc = {s: ("dirichlet" if self._any(s, "pressure_rule", "dirichlet")
+                                else self._parts[s][0][1].pressure_rule) for s in SIDES}
         self.particle_rules = tuple(self.bcs[s].particle_rule for s in SIDES)
-        self.half_cell = tuple((self.bcs[SIDES[2 * d]].half_cell_source, self.bcs[SIDES[2 * d + 1]].half_cell_source)
-                               for d in range(3))
+        self.half_cell = tuple((self._any(SIDES[2 * d], "half_cell_source", True),
+                                self._any(SIDES[2 * d + 1], "half_cell_source", True)) for d in range(3))
         self._precompute()
+
+    def _any(self, side: str, rule: str, value) -> bool:
+        """Whether some part of the side has ``rule == value``."""
+        return any(getattr(bc, rule) == value for _, bc in self._parts[side])
+
+    def parts(self, side: str) -> list:
+        """The conditions on the side as ``[(mask, bc)]``: ``mask`` a boolean array over the
+        side's face cells (the two tangential axes in increasing order) where ``bc`` holds, None
+        for a side with one condition."""
+        lab = self._labels[side]
+        if lab is None:
+            return [(None, self.bcs[side])]
+        return [(lab == k, bc) for k, bc in self._parts[side] if np.any(lab == k)]
+
+    def cell_mask(self, side: str, rule: str, value):
+        """Boolean array over the side's face cells: where the side's rule ``rule`` has
+        ``value`` (a patched side), or a plain bool for a side with one condition."""
+        lab = self._labels[side]
+        if lab is None:
+            return getattr(self.bcs[side], rule) == value
+        out = np.zeros(lab.shape, dtype=bool)
+        for k, bc in self._parts[side]:
+            if getattr(bc, rule) == value:
+                out |= lab == k
+        return out
+
+    @property
+    def patched_sides(self) -> list:
+        """The sides whose normal rule differs between face cells (some faces solved, some
+        prescribed): the solver keeps their prescribed faces (:meth:`close_prescribed_faces`)."""
+        return [s for s in SIDES if self._labels[s] is not None
+                and len({bc.normal_rule for _, bc in self._parts[s]}) > 1]
 
     @property
     def needs_wide_halo(self) -> bool:
@@ -338,6 +484,43 @@ class BoundarySet:
                 cs.append(c.reshape(shape))
         return cs
 
+    def _loc_labels(self, side: str, loc: str) -> np.ndarray:
+        """The part label of every boundary point of ``loc`` on a patched side, over the two
+        tangential axes of the array (halos included, axis d of size 1 inserted): halo points
+        take the label of the nearest face cell; a face point between two cells of different
+        parts takes the lower label (the default, then the patches in order)."""
+        g = self.grid.halo
+        d = "xyz".index(side[0])
+        lab = np.pad(self._labels[side], g, mode="edge")
+        for k, e in enumerate(e for e in range(3) if e != d):
+            if loc[e] == "f":
+                m = lab.shape[k]
+                left = np.take(lab, np.clip(np.arange(m + 1) - 1, 0, m - 1), axis=k)
+                right = np.take(lab, np.clip(np.arange(m + 1), 0, m - 1), axis=k)
+                lab = np.minimum(left, right)
+        return np.expand_dims(lab, d)
+
+    def _blocks(self, side: str, loc: str) -> list:
+        """A patched side's boundary points of ``loc`` as rectangular blocks of one part each:
+        ``[(blk, bc)]``, ``blk`` the slices of the two tangential axes (consecutive rows with
+        the same runs of labels merged); ``[(None, bc)]`` for a side with one condition."""
+        if self._labels[side] is None:
+            return [(None, self.bcs[side])]
+        d = "xyz".index(side[0])
+        lab = np.squeeze(self._loc_labels(side, loc), axis=d)
+        bcs = dict(self._parts[side])
+        rows = []
+        for r in lab:
+            cuts = [0] + [int(i) + 1 for i in np.flatnonzero(np.diff(r))] + [r.size]
+            rows.append(tuple((a, b, int(r[a])) for a, b in zip(cuts[:-1], cuts[1:])))
+        out = []
+        i0 = 0
+        for i in range(1, len(rows) + 1):
+            if i == len(rows) or rows[i] != rows[i0]:
+                out.extend(((slice(i0, i), slice(a, b)), bcs[k]) for a, b, k in rows[i0])
+                i0 = i
+        return out
+
     def _precompute(self):
         self._ub = {}
         self._pout = {}
@@ -347,17 +530,57 @@ class BoundarySet:
             d = "xyz".index(s[0])
             if bc.prescribes_velocity:
                 for c in range(3):
-                    x, y, z = self._boundary_points(s, _COMPONENT_LOC[c])
-                    vals = bc.velocity(s, x, y, z)[c]
                     shape = list(self.grid.array_shape(_COMPONENT_LOC[c]))
                     shape[d] = 1
+                    x, y, z = self._boundary_points(s, _COMPONENT_LOC[c])
+                    if self._labels[s] is None:
+                        vals = bc.velocity(s, x, y, z)[c]
+                    else:  # each prescribing part's values on its points, 0 elsewhere
+                        lab = self._loc_labels(s, _COMPONENT_LOC[c])
+                        vals = np.zeros(shape)
+                        for k, b in self._parts[s]:
+                            if b.prescribes_velocity:
+                                vals = np.where(lab == k, np.broadcast_to(b.velocity(s, x, y, z)[c], shape), vals)
                     self._ub[(s, c)] = np.ascontiguousarray(np.broadcast_to(vals, shape))
-            if bc.pressure_rule == "dirichlet":
+            if self.pressure_bc[s] == "dirichlet":
                 x, y, z = self._boundary_points(s, "ccc")
-                pv = bc.pressure(s, x, y, z)
                 shape = list(self.grid.array_shape("ccc"))
                 shape[d] = 1
+                if self._labels[s] is None:
+                    pv = bc.pressure(s, x, y, z)
+                else:
+                    lab = self._loc_labels(s, "ccc")
+                    pv = np.zeros(shape)
+                    for k, b in self._parts[s]:
+                        if b.pressure_rule == "dirichlet":
+                            pv = np.where(lab == k, np.broadcast_to(np.asarray(b.pressure(s, x, y, z), float), shape), pv)
                 self._pout[s] = np.ascontiguousarray(np.broadcast_to(np.asarray(pv, dtype=float), shape))
+        self._closed = {}
+        g = self.grid.halo
+        for s in self.patched_sides:  # the prescribed boundary faces of a partly solved side
+            d = "xyz".index(s[0])
+            n = self.grid.shape[d]
+            mask = self.cell_mask(s, "normal_rule", "prescribed")
+            i1, i2 = np.nonzero(mask)
+            e1, e2 = (e for e in range(3) if e != d)
+            fi = [None, None, None]
+            fi[d] = np.full(i1.size, 0 if s[1] == "-" else n)
+            fi[e1], fi[e2] = i1, i2
+            face = tuple(fi)
+            arr = tuple(a + g for a in face)
+            self._closed[s] = (d, face, arr, self._ub[(s, d)][tuple(np.zeros_like(a) if e == d else a
+                                                                     for e, a in enumerate(arr))])
+
+    def close_prescribed_faces(self, vel, coefs, ratios) -> None:
+        """On a side whose boundary faces are partly solved (a patched side with an outlet
+        part): give the prescribed faces their value again after the predictor wrote them
+        (``vel``: the three face arrays with halos) and zero their pressure coefficient and
+        correction ratio (interior face arrays), so that the pressure equation sees a Neumann
+        face there and the correction leaves it alone.  Nothing on other sides."""
+        for d, face, arr, ub in self._closed.values():
+            vel[d][arr] = ub
+            coefs[d][face] = 0.0
+            ratios[d][face] = 0.0
 
     def boundary_velocity(self, side: str, comp: int) -> np.ndarray | None:
         """Prescribed value of component ``comp`` on ``side`` (None where not prescribed)."""
@@ -460,33 +683,42 @@ class BoundarySet:
                     st.append((_sl(d, g + n - 1 + m), _sl(d, g - 1 + m), 0, 0.0))
             return st
         for side, lower in ((lo, True), (hi, False)):
-            bc = self.bcs[side]
-            if c == d:  # normal component, boundary face at g (lower) or g+n (upper)
-                ub = self._ub.get((side, c))
-                b = g if lower else g + n
-                sgn = -1 if lower else 1
-                if bc.normal_rule == "solved":
-                    for m in range(1, g + 1):
-                        st.append((_sl(d, b + sgn * m), _sl(d, b), 0, 0.0))
-                else:
-                    st.append((_sl(d, slice(b, b + 1)), None, 2, ub))
-                    for m in range(1, g + 1):
-                        st.append((_sl(d, slice(b + sgn * m, b + sgn * m + 1)),
-                                   _sl(d, slice(b - sgn * m, b - sgn * m + 1)), 1, 2.0 * ub))
-            else:  # tangential component, first interior point half a cell from the side
-                rule = bc.tangential_rule
-                ub = self._ub.get((side, c)) if rule == "prescribed" else None
+            for blk, bc in self._blocks(side, _COMPONENT_LOC[c]):
+                st.extend(self._side_component(c, d, side, lower, bc, blk))
+        return st
+
+    def _side_component(self, c: int, d: int, side: str, lower: bool, bc: BC, blk) -> list:
+        """The fill of component c on one side by the rules of ``bc``, on the block ``blk`` of
+        the side's points (None: all of them)."""
+        g = self.grid.halo
+        n = self.grid.shape[d]
+        st = []
+        if c == d:  # normal component, boundary face at g (lower) or g+n (upper)
+            ub = _cut(self._ub.get((side, c)), d, blk)
+            b = g if lower else g + n
+            sgn = -1 if lower else 1
+            if bc.normal_rule == "solved":
                 for m in range(1, g + 1):
-                    if lower:
-                        gi, mi, fi = g - m, g + m - 1, g
-                    else:
-                        gi, mi, fi = g + n - 1 + m, g + n - m, g + n - 1
-                    if rule == "zero_gradient":
-                        st.append((_sl(d, gi), _sl(d, fi), 0, 0.0))
-                    elif rule == "slip":
-                        st.append((_sl(d, gi), _sl(d, mi), 0, 0.0))
-                    else:
-                        st.append((_sl(d, slice(gi, gi + 1)), _sl(d, slice(mi, mi + 1)), 1, 2.0 * ub))
+                    st.append((_ix(d, b + sgn * m, blk), _ix(d, b, blk), 0, 0.0))
+            else:
+                st.append((_ix(d, slice(b, b + 1), blk), None, 2, ub))
+                for m in range(1, g + 1):
+                    st.append((_ix(d, slice(b + sgn * m, b + sgn * m + 1), blk),
+                               _ix(d, slice(b - sgn * m, b - sgn * m + 1), blk), 1, 2.0 * ub))
+        else:  # tangential component, first interior point half a cell from the side
+            rule = bc.tangential_rule
+            ub = _cut(self._ub.get((side, c)), d, blk) if rule == "prescribed" else None
+            for m in range(1, g + 1):
+                if lower:
+                    gi, mi, fi = g - m, g + m - 1, g
+                else:
+                    gi, mi, fi = g + n - 1 + m, g + n - m, g + n - 1
+                if rule == "zero_gradient":
+                    st.append((_ix(d, gi, blk), _ix(d, fi, blk), 0, 0.0))
+                elif rule == "slip":
+                    st.append((_ix(d, gi, blk), _ix(d, mi, blk), 0, 0.0))
+                else:
+                    st.append((_ix(d, slice(gi, gi + 1), blk), _ix(d, slice(mi, mi + 1), blk), 1, 2.0 * ub))
         return st
 
     def _pressure_statements(self, homogeneous: bool) -> list:
@@ -500,13 +732,14 @@ class BoundarySet:
                     st.append((_sl(d, g + n - 1 + m), _sl(d, g - 1 + m), 0, 0.0))
                 continue
             for side, lower in ((SIDES[2 * d], True), (SIDES[2 * d + 1], False)):
-                for m in range(1, g + 1):
-                    gi, mi = (g - m, g + m - 1) if lower else (g + n - 1 + m, g + n - m)
-                    if self.bcs[side].pressure_rule == "dirichlet":
-                        pb = 0.0 if homogeneous else self._pout[side]
-                        st.append((_sl(d, slice(gi, gi + 1)), _sl(d, slice(mi, mi + 1)), 1, 2.0 * pb))
-                    else:
-                        st.append((_sl(d, gi), _sl(d, mi), 0, 0.0))
+                for blk, bc in self._blocks(side, "ccc"):
+                    for m in range(1, g + 1):
+                        gi, mi = (g - m, g + m - 1) if lower else (g + n - 1 + m, g + n - m)
+                        if bc.pressure_rule == "dirichlet":
+                            pb = 0.0 if homogeneous else _cut(self._pout[side], d, blk)
+                            st.append((_ix(d, slice(gi, gi + 1), blk), _ix(d, slice(mi, mi + 1), blk), 1, 2.0 * pb))
+                        else:
+                            st.append((_ix(d, gi, blk), _ix(d, mi, blk), 0, 0.0))
         return st
 
     def _scalar_statements(self) -> list:

@@ -134,6 +134,9 @@ class GasSolver:
         self.defect_tol = float(defect_tol)
         self.grid = grid
         self.bc = BoundarySet(grid, bcs)
+        if viscosity == "implicit" and self.bc.patched_sides:
+            raise CaseError("gas.viscosity", f"'implicit' is not available with a partly solved side "
+                            f"({', '.join(self.bc.patched_sides)}: a patched side with an outlet part); use 'explicit'")
         if grid.halo < 2 and (advection == "tvd" or self.bc.needs_wide_halo):
             raise CaseError("gas.grid.halo", "TVD advection and pressure outlets need halo = 2")
         self.rho = float(rho)
@@ -304,6 +307,9 @@ class GasSolver:
                 val, it = self._implicit_viscous(c, sl, self._numer[c], self._den[c], eo, dt, (lo, hi))
                 viscous_iters += it
                 vel[c][sl] = val
+        # a side with solved and prescribed boundary faces (Patched): the predictor updated the
+        # whole face range; the prescribed faces get their value back and no pressure coupling
+        self.bc.close_prescribed_faces(vel, self._coef, self._ratio)
         # the divergence below reads only the faces of the cells: the one face it needs that
         # the predictor did not write is face n of a periodic component (= face 0); the
         # halos are filled after the correction

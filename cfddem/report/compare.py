@@ -1,6 +1,12 @@
 """``cfddem compare OUT_A OUT_B``: the gas-against-no-gas (or any A-against-B) report.
 
-Reads two run folders (``results.h5`` each) and writes, into ``--out DIR``:
+The report follows what the runs measured (their ``/measurements`` groups), not the scene's
+name: runs with time-averaged chute measurements (``/measurements/chute``) get the chute
+report below; runs with a silo discharge (``/measurements/silo`` and ``mass_flow_rate``) get
+the silo report (:func:`_silo_report`: mass flow rate, discharge curve, bulk density,
+clogging, wall times and the gas solver).
+
+Chute report.  Reads two run folders (``results.h5`` each) and writes, into ``--out DIR``:
 
 * ``report.md`` with PNG figures beside it and ``report.html`` (one self-contained file, the
   figures embedded as base64 PNG);
@@ -58,14 +64,19 @@ class Run:
         self.meta = read_metadata(h5)
         _, self.config = read_config(h5)
         self.chute = self.meas.get("chute", {})
-        if int(np.asarray(self.chute.get("n_samples", 0))) == 0:
+        self.silo = self.meas.get("silo", {})
+        if int(np.asarray(self.chute.get("n_samples", 0))) > 0:
+            self.kind = "chute"
+        elif self.silo and "mass_flow_rate" in self.meas:
+            self.kind = "silo"
+        else:
             raise CaseError("OUT", f"{self.folder}: the run holds no time-averaged chute measurements "
-                                   "(did it reach measurements.start_time?)")
+                                   "(did it reach measurements.start_time?) and no silo discharge (/measurements/silo)")
         self.gas = self.meas.get("gas", {})
         gas_on = bool(self.config.get("gas", {}).get("enabled", False))
         self.label = label or ("with gas" if gas_on else "no gas")
         self.rpm = float(self.config.get("frame", {}).get("rpm", 0.0))
-        self.exit_z = float(self.config.get("exit", {}).get("z", np.nan))
+        self.exit_z = float(self.config.get("exit", {}).get("z") or np.nan)
         self.wall_time = float(self.meta.get("wall_time", np.nan))
         self.timings = {k[len("time_"):]: float(v) for k, v in self.meta.items() if k.startswith("time_")}
         # the gas solver over the run (Simulation stores CoupledGas.run_stats(); absent without gas)
@@ -251,14 +262,135 @@ def _fig_cost(runs, path):
     plt.close(fig)
 
 
+# ------------------------------------------------------------------ silo
+def _silo(run) -> dict:
+    """The silo numbers of a run: flow rate, bulk density, clogging, the discharge record."""
+    m, s = run.meas, run.silo
+    t = np.asarray(s.get("discharge_time", []), float)
+    mass = np.asarray(s.get("discharge_mass", []), float)
+    return {"mass_flow_rate": float(np.asarray(m.get("mass_flow_rate", np.nan))),
+            "bulk_density": float(np.asarray(m.get("bulk_density", np.nan))),
+            "clogged": bool(int(np.asarray(m.get("clogged", 0)))),
+            "gate_open_time": float(np.asarray(s.get("gate_open_time", np.nan))),
+            "discharged_mass": float(mass[-1]) if mass.size else math.nan,
+            "fit_window": [float(v) for v in np.asarray(s.get("fit_window", [np.nan] * 4), float)],
+            "fit_residual_rel": float(np.asarray(s.get("fit_residual_rel", np.nan))),
+            "t": t, "m": mass}
+
+
+def _fig_discharge(runs, path):
+    plt = _mpl()
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    for r, c in zip(runs, ("C0", "C1")):
+        d = _silo(r)
+        t0 = d["gate_open_time"]
+        t, m = d["t"] - t0, d["m"]
+        axes[0].plot(t, 1e3 * m, color=c, label=r.label)
+        lo, hi = d["fit_window"][0] - t0, d["fit_window"][1] - t0
+        sel = (t >= lo) & (t <= hi)
+        if sel.any() and math.isfinite(d["mass_flow_rate"]):
+            b = float(np.mean(m[sel] - d["mass_flow_rate"] * t[sel]))
+            axes[0].plot(t[sel], 1e3 * (b + d["mass_flow_rate"] * t[sel]), "--", color=c,
+                         label=f"fit: {1e3 * d['mass_flow_rate']:.3g} g/s")
+        if t.size > 2:
+            # rate over a sliding window of 5 records (the record interval is settle_check_interval)
+            k = min(5, t.size - 1)
+            axes[1].plot(0.5 * (t[k:] + t[:-k]), 1e3 * (m[k:] - m[:-k]) / (t[k:] - t[:-k]), color=c, label=r.label)
+    axes[0].set_xlabel("time since the gate opened [s]")
+    axes[0].set_ylabel("discharged mass [g]")
+    axes[1].set_xlabel("time since the gate opened [s]")
+    axes[1].set_ylabel("mass flow rate [g/s] (5-record window)")
+    for a in axes:
+        a.grid(alpha=0.3)
+        a.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def _fig_silo_field(runs, path):
+    plt = _mpl()
+    fig, axes = plt.subplots(1, len(runs), figsize=(4.5 * len(runs), 5), sharey=True)
+    axes = np.atleast_1d(axes)
+    fields = [r.silo.get("field", {}) for r in runs]
+    vmax = max((float(np.nanmax(np.abs(np.asarray(f["vy"])))) for f in fields if "vy" in f and np.size(f["vy"])
+                and np.isfinite(np.asarray(f["vy"])).any()), default=1.0)
+    im = None
+    for ax, r, f in zip(axes, runs, fields):
+        ax.set_title(r.label, fontsize=9)
+        ax.set_xlabel("x [mm]")
+        if "vy" not in f or not np.size(f["vy"]):
+            continue
+        x, y, vy = (np.asarray(f[k], float) for k in ("x", "y", "vy"))
+        if vy.shape == (x.size, y.size) and x.size != y.size:
+            vy = vy.T  # (y, x) for pcolormesh
+        im = ax.pcolormesh(1e3 * x, 1e3 * y, vy, cmap="viridis_r", vmin=-vmax, vmax=0.0, shading="nearest")
+        ax.set_aspect("equal")
+    axes[0].set_ylabel("y [mm]")
+    if im is not None:
+        fig.colorbar(im, ax=list(axes), label="time-averaged vertical particle velocity [m/s]")
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _silo_report(ra, rb, out: Path) -> dict:
+    """The silo report of runs ``ra`` and ``rb`` (same kind) into ``out``."""
+    runs = [ra, rb]
+    figs = {
+        "discharge.png": ("Discharged mass and mass flow rate against time", _fig_discharge),
+        "velocity_field.png": ("Time-averaged vertical particle velocity during the discharge", _fig_silo_field),
+        "cost.png": ("Wall time and cost split", _fig_cost),
+    }
+    for name, (_, fn) in figs.items():
+        fn(runs, out / name)
+    da, db = _silo(ra), _silo(rb)
+    qa, qb = da["mass_flow_rate"], db["mass_flow_rate"]
+    rel = (qb - qa) / qa if qa else math.nan
+    summary = {"kind": "silo", "run_a": str(ra.folder), "run_b": str(rb.folder), "label_a": ra.label,
+               "label_b": rb.label}
+    for key in ("mass_flow_rate", "bulk_density", "clogged", "gate_open_time", "discharged_mass", "fit_window",
+                "fit_residual_rel"):
+        summary[f"{key}_a"], summary[f"{key}_b"] = da[key], db[key]
+    summary.update({
+        "relative_difference_flow": rel,
+        "wall_time_a": ra.wall_time, "wall_time_b": rb.wall_time,
+        "wall_time_ratio": rb.wall_time / ra.wall_time if ra.wall_time else math.nan,
+        "cost_a": ra.timings, "cost_b": rb.timings,
+        "gas_solver_a": ra.gas_solver or None, "gas_solver_b": rb.gas_solver or None,
+    })
+    summary["headline"] = (f"silo mass flow rate {1e3 * qa:.4g} g/s ({ra.label}), {1e3 * qb:.4g} g/s ({rb.label}) "
+                           f"({100 * rel:+.2f} %)")
+    (out / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=True))
+
+    def clog(d):
+        return "clogged" if d["clogged"] else "not clogged"
+
+    md = [f"# {ra.label} against {rb.label}: silo discharge", "",
+          f"- A: `{ra.folder}` ({ra.label}); B: `{rb.folder}` ({rb.label})",
+          f"- steady mass flow rate (linear fit of the discharged mass): A {1e3 * qa:.4g} g/s, B {1e3 * qb:.4g} g/s, "
+          f"relative difference (B - A)/A = {100 * rel:+.2f} % (fit residual rms / range: A {da['fit_residual_rel']:.2g}, "
+          f"B {db['fit_residual_rel']:.2g})",
+          f"- discharged mass: A {1e3 * da['discharged_mass']:.4g} g, B {1e3 * db['discharged_mass']:.4g} g; "
+          f"A {clog(da)}, B {clog(db)}",
+          f"- bulk density at the gate opening: A {da['bulk_density']:.1f} kg/m3, B {db['bulk_density']:.1f} kg/m3 "
+          f"(gate at A {da['gate_open_time']:.4g} s, B {db['gate_open_time']:.4g} s)"]
+    _write_report(md, runs, figs, out, summary)
+    return summary
+
+
 def compare_runs(a: str | Path, b: str | Path, out: str | Path, labels=(None, None)) -> dict:
-    """Write the comparison report of runs ``a`` and ``b`` into ``out``; return the summary."""
+    """Write the comparison report of runs ``a`` and ``b`` into ``out``; return the summary
+    (its ``headline``: one sentence on the main difference, for ``cfddem run``)."""
     ra, rb = Run(a, labels[0]), Run(b, labels[1])
+    if ra.kind != rb.kind:
+        raise CaseError("OUT", f"cannot compare a {ra.kind} run ({ra.folder}) with a {rb.kind} run ({rb.folder})")
     if ra.label == rb.label:
         ra.label, rb.label = f"A: {ra.label}", f"B: {rb.label}"
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     runs = [ra, rb]
+    if ra.kind == "silo":
+        return _silo_report(ra, rb, out)
     figs = {
         "velocity_along_chute.png": ("Mean streamwise particle velocity along the chute", _fig_velocity),
         "bed_height.png": ("Bed height at the left, centre and right sensors", _fig_bed),
@@ -280,12 +412,22 @@ def compare_runs(a: str | Path, b: str | Path, out: str | Path, labels=(None, No
         "rpm_a": ra.rpm, "rpm_b": rb.rpm,
         "gas_solver_a": ra.gas_solver or None, "gas_solver_b": rb.gas_solver or None,
     }
+    summary["headline"] = (f"mean streamwise velocity over the last {END_LENGTH:g} m {va:.4f} m/s ({ra.label}), "
+                           f"{vb:.4f} m/s ({rb.label}) ({100 * summary['relative_difference_end']:+.2f} %)")
     (out / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=True))
     md = [f"# {ra.label} against {rb.label}", "",
           f"- A: `{ra.folder}` ({ra.label}, {ra.rpm:g} rpm); B: `{rb.folder}` ({rb.label}, {rb.rpm:g} rpm)",
           f"- mean streamwise particle velocity over the last {END_LENGTH:g} m: A {va:.4f} m/s, "
-          f"B {vb:.4f} m/s, relative difference (B - A)/A = {100 * summary['relative_difference_end']:+.2f} %",
-          f"- wall time: A {ra.wall_time:.1f} s, B {rb.wall_time:.1f} s, ratio B/A = {summary['wall_time_ratio']:.3f}"]
+          f"B {vb:.4f} m/s, relative difference (B - A)/A = {100 * summary['relative_difference_end']:+.2f} %"]
+    _write_report(md, runs, figs, out, summary)
+    return summary
+
+
+def _write_report(md: list, runs, figs: dict, out: Path, summary: dict) -> None:
+    """The wall times, the gas solver lines, the cost table and the figures after the lines
+    ``md``; report.md and the self-contained report.html."""
+    ra, rb = runs
+    md.append(f"- wall time: A {ra.wall_time:.1f} s, B {rb.wall_time:.1f} s, ratio B/A = {summary['wall_time_ratio']:.3f}")
     md += [f"- {line}" for line in (ra.gas_solver_line(), rb.gas_solver_line()) if line]
     md.append("")
     md.append("| cost [s] | " + " | ".join(r.label for r in runs) + " |")
@@ -327,4 +469,3 @@ def compare_runs(a: str | Path, b: str | Path, out: str | Path, labels=(None, No
         "<!DOCTYPE html><html><head><meta charset='utf-8'><title>cfddem comparison</title>"
         "<style>body{font-family:sans-serif;max-width:1100px;margin:auto}</style></head><body>\n"
         + text + "\n</body></html>\n")
-    return summary

@@ -315,10 +315,66 @@ class SiloScene(Scene):
     DOC = "'silo': the planar silo of [silo]"
     EXAMPLE = "silo_flat"
     SCHEMA = {"silo": SILO_KEYS}
+    HAS_GAS = True
 
     @classmethod
     def check(cls, r: dict, case_dir) -> None:
         check_silo_case(r)
+        if r["gas"]["enabled"] and r["silo"]["hopper_angle_deg"] > 0:
+            raise CaseError("gas.enabled", "the silo's gas domain is a box whose bottom is the outlet plane: it "
+                                           "needs a flat-bottom silo (silo.hopper_angle_deg = 0)")
+
+    @classmethod
+    def speed_scale(cls, case) -> float:
+        """A particle falling freely from the top of the side walls to the removal plane."""
+        s = case.resolved["silo"]
+        p = case.particles
+        g = SiloGeometry(s, p.diameter, p.seed, p.clump, p.density, p.clump_spheres)
+        return math.sqrt(2.0 * case.gravity.g * (g.H + g.removal_depth))
+
+    @classmethod
+    def gas_domain(cls, case):
+        """The air in the silo: x in [0, width], y in [0, H] (H the side-wall height), z in
+        [0, depth] on ``gas.cells``; no-slip side, front and back walls; the open top a pressure
+        outlet at p = 0 (gauge); the bottom (the outlet plane y = 0) patched: no-slip plates
+        with a pressure outlet over the slot (the face cells whose centres lie within the slot)
+        at the hydrostatic p = rho g H of air at rest, the particle rule "leave" (a particle
+        below the outlet plane has left the gas: no volume, drag or pressure force).  The gas
+        starts at rest with the hydrostatic pressure ``rho g (H - y)``."""
+        from ..gas import NoSlip, Patched, PressureOutlet, StaggeredGrid
+        from ..gas.domain import GasDomain
+        from .common import gravity_vector
+
+        s = case.resolved["silo"]
+        p = case.particles
+        geo = SiloGeometry(s, p.diameter, p.seed, p.clump, p.density, p.clump_spheres)
+        nx, ny, nz = (int(v) for v in case.gas.cells)
+        grid = StaggeredGrid((nx, ny, nz), (geo.W, geo.H, geo.L), (0.0, 0.0, 0.0), halo=2)
+        g = np.asarray(gravity_vector(case), float)
+        rho = float(case.gas.density)
+        H = geo.H
+        x0, x1 = geo.xc - 0.5 * geo.b, geo.xc + 0.5 * geo.b
+        slot = ((x0, -math.inf, -math.inf), (x1, math.inf, math.inf))
+        bottom = Patched(default=NoSlip(), patches=[(slot, PressureOutlet(p=rho * g[1] * (0.0 - H)))],
+                         particle_rule="leave")
+        top = PressureOutlet(p=0.0)
+        bcs = {"x-": NoSlip(), "x+": NoSlip(), "y-": bottom, "y+": top, "z-": NoSlip(), "z+": NoSlip()}
+        xc = grid.centres(0)
+        inside = (xc >= x0) & (xc <= x1)
+        n_in = int(inside.sum())
+        if n_in == 0:
+            raise CaseError("gas.cells", f"no gas cell centre lies in the slot (x {x0:.4g}..{x1:.4g} m) with "
+                                         f"{nx} cells across {geo.W:g} m: use more cells across (gas.cells[0])")
+        dx = grid.spacing[0]
+        return GasDomain(
+            grid=grid, bcs=bcs, gravity=tuple(g),
+            velocity=lambda x, y, z: (0.0 * x, 0.0 * x, 0.0 * x),
+            pressure=lambda x, y, z: rho * g[1] * (y - H) + 0.0 * x,
+            speed_scale=cls.speed_scale(case),
+            notes=[f"silo air: box {geo.W:g} x {H:.4g} x {geo.L:g} m; open top p = 0, slot outlet p = "
+                   f"{rho * -g[1] * H:.3g} Pa over {n_in} cells across (x {xc[inside][0] - 0.5 * dx:.4g}..."
+                   f"{xc[inside][-1] + 0.5 * dx:.4g} m; the slot is {x0:.4g}...{x1:.4g} m), no-slip plates and walls; "
+                   "particles below the outlet plane take no part in the exchange"])
 
     @classmethod
     def wall_specs(cls, case) -> list:

@@ -75,3 +75,55 @@ def test_compare_refuses_runs_without_measurements(tmp_path):
     p = subprocess.run([sys.executable, "-m", "cfddem.cli", "compare", str(d), str(d)], capture_output=True,
                        text=True)
     assert p.returncode == 2 and "no time-averaged chute measurements" in p.stderr
+
+
+def fake_silo_run(folder, rate, gas, wall, clogged=False):
+    """A silo run folder whose discharge is linear at `rate` kg/s from the gate opening at 0.2 s
+    until 4 g are out."""
+    folder.mkdir(parents=True)
+    t = np.arange(0.2, 1.2001, 0.01)
+    m = np.minimum(rate * (t - 0.2), 0.004)
+    fx, fy = np.linspace(0.001, 0.023, 12), np.linspace(0.0, 0.03, 16)
+    vy = -0.1 * np.ones((16, 12))
+    with ResultsFile(folder / "results.h5") as res:
+        res.write_config("", {"gas": {"enabled": gas}, "frame": {"rpm": 0.0}, "exit": {"z": None}})
+        res.append_series(time=0.0, n_particles=10)
+        res.write_measurements(None, {
+            "mass_flow_rate": rate, "bulk_density": 1400.0 + (5.0 if gas else 0.0),
+            "clogged": np.int64(1 if clogged else 0),
+            "silo": {"discharge_time": t, "discharge_mass": m, "gate_open_time": 0.2,
+                     "fit_window": np.array([0.2 + 0.2 * 0.004 / rate, 0.2 + 0.8 * 0.004 / rate, 0.0008, 0.0032]),
+                     "fit_residual_rel": 0.01, "field": {"x": fx, "y": fy, "vy": vy, "vx": 0 * vy}}})
+        res.write_metadata(wall_time=wall, time_particles=0.8 * wall, time_gas=0.15 * wall if gas else 0.0)
+        if gas:
+            res.write_metadata(gas_steps=5000, gas_cg_iterations_mean=5.0, gas_cg_iterations_max=7,
+                               gas_pressure_residual_max=1e-8, gas_mass_defect_max=2e-10, gas_cfl_max=0.07)
+    return folder
+
+
+def test_compare_silo_report_from_its_measurements(tmp_path):
+    """Runs holding a silo discharge get the silo report: flow rates, their difference, bulk
+    density, clogging, wall times, the gas solver; a chute run is not compared with a silo run."""
+    a = fake_silo_run(tmp_path / "nogas", 0.0068, False, 40.0)
+    b = fake_silo_run(tmp_path / "gas", 0.0065, True, 70.0, clogged=True)
+    out = tmp_path / "cmp"
+    p = subprocess.run([sys.executable, "-m", "cfddem.cli", "compare", str(a), str(b), "--out", str(out)],
+                       capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    assert "silo mass flow rate 6.8 g/s (no gas), 6.5 g/s (with gas) (-4.41 %)" in p.stdout
+    s = json.loads((out / "summary.json").read_text())
+    assert s["kind"] == "silo"
+    assert s["relative_difference_flow"] == pytest.approx(0.0065 / 0.0068 - 1.0)
+    assert s["bulk_density_a"] == 1400.0 and s["bulk_density_b"] == 1405.0
+    assert s["clogged_a"] is False and s["clogged_b"] is True
+    assert s["discharged_mass_b"] == pytest.approx(0.004)
+    assert s["wall_time_ratio"] == pytest.approx(70.0 / 40.0)
+    assert s["gas_solver_a"] is None and s["gas_solver_b"]["gas_steps"] == 5000
+    for f in ("discharge.png", "velocity_field.png", "cost.png"):
+        assert (out / f).stat().st_size > 5000, f
+    md = (out / "report.md").read_text()
+    assert "A not clogged, B clogged" in md and "gas solver (with gas): 5000 gas steps" in md
+    c = fake_run(tmp_path / "chute", 2.0, False, 100.0)
+    p = subprocess.run([sys.executable, "-m", "cfddem.cli", "compare", str(c), str(b), "--out", str(tmp_path / "x")],
+                       capture_output=True, text=True)
+    assert p.returncode == 2 and "cannot compare a chute run" in p.stderr

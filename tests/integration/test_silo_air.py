@@ -1,0 +1,60 @@
+"""The silo with air (cases/silo_air, issue #17): a tiny run builds the gas on the silo's
+domain (patched bottom: plates and a slot outlet), runs gas steps with a bounded mass-balance
+defect and writes the gas measurements; `cfddem check` passes; a hopper is refused."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cfddem.config import load_case
+from cfddem.errors import CaseError
+from cfddem.gas import Patched
+from cfddem.io.results import read_measurements, read_series
+from cfddem.simulation import Simulation
+
+ROOT = Path(__file__).resolve().parents[2]
+CASE = ROOT / "cases" / "silo_air"
+
+pytestmark = pytest.mark.usefixtures("one_numba_thread")
+
+
+def test_silo_air_short_run(tmp_path):
+    ov = ["silo.n_particles=200", "time.end_time=0.08", 'silo.gate="time"', "silo.gate_time=0.03",
+          "output.vtk=false", "output.plots=false", "time.threads=1", "study.compare_without_gas=false",
+          "checkpoint.wall_interval=0", "output.series_interval=0.002"]
+    case = load_case(CASE, overrides=ov)
+    sim = Simulation(case, tmp_path / "run", overwrite=True, echo=False, progress=False, threads=1)
+    s = sim.run()
+    assert s.status == "done", s.message
+    bc = sim.gas.gas.bc
+    assert isinstance(bc.bcs["y-"], Patched) and bc.particle_rules[2] == "leave"
+    # the slot is the two middle cells across (x 9...15 mm), over the whole depth
+    solved = bc.cell_mask("y-", "normal_rule", "solved")
+    assert np.array_equal(np.flatnonzero(solved[:, 0]), [3, 4]) and solved.all(axis=1)[[3, 4]].all()
+    ser = read_series(tmp_path / "run" / "results.h5")
+    assert ser["gas_pressure_iterations"].max() >= 1
+    assert np.nanmax(ser["gas_max_divergence"]) < 1e-9
+    assert ser["discharged_mass"][-1] > 0  # beads left through the slot after the gate opened at 0.03 s
+    gas = sim.gas.gas
+    assert sim.gas.n_couplings == pytest.approx(0.08 / (10 * 1.8e-5), abs=2)
+    # no flow through the plates; the slot's boundary pressure is the hydrostatic value at y = 0
+    v = gas.v.interior
+    assert np.all(v[[0, 1, 2, 5, 6, 7], 0, :] == 0.0)
+    g = gas.grid.halo
+    pb = 0.5 * (gas.p.data[g + 3:g + 5, g - 1, g:-g] + gas.p.data[g + 3:g + 5, g, g:-g])
+    assert np.allclose(pb, 1.2 * 9.81 * 0.030, rtol=1e-12)
+    meas = read_measurements(tmp_path / "run" / "results.h5")
+    assert meas["gas"]["mean_velocity"].shape == (8, 10, 2, 3)
+    assert "mass_flow_rate" in meas and "silo" in meas
+
+
+def test_silo_air_check_and_hopper_refused():
+    p = subprocess.run([sys.executable, "-m", "cfddem.cli", "check", str(CASE)], capture_output=True, text=True,
+                       cwd=ROOT)
+    assert p.returncode == 0, p.stderr
+    assert "slot outlet p = 0.353 Pa over 2 cells across" in p.stdout
+    with pytest.raises(CaseError, match="gas.enabled.*flat-bottom"):
+        load_case(CASE, overrides=["silo.hopper_angle_deg=60", "silo.height=0"])
