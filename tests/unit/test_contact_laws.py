@@ -13,6 +13,7 @@ from cfddem import config
 from cfddem._jit import kernel
 from cfddem.errors import CaseError
 from cfddem.particles import contact as pc
+from cfddem.schema import wall_override
 from cfddem.particles.contact.base import FRICTION_KEYS, NPARAM, P_1, P_4, P_MODEL, P_MU, P_MUR, ContactLaw, LawKey
 
 LAWS = list(pc.CONTACT_LAWS.values())
@@ -161,7 +162,7 @@ def test_a_new_law_is_one_module_and_one_registry_entry(monkeypatch):
     # case keys and the model choice
     sec = config._contact_section()
     assert sec["model"].choices[-1] == "spring" and "'spring' (keys k, mu, mu_r)" in sec["model"].doc
-    assert sec["particle_wall"]["k"].default == 500.0 and "k" in config._wall_override("gate")
+    assert sec["particle_wall"]["k"].default == 500.0 and "k" in wall_override("gate")
     law = pc.contact_law({"k": 800.0, "mu": 0.2, "mu_r": 0.0}, "spring")
     assert isinstance(law, FrictionlessSpring) and law.params()[P_MODEL] == 7
     with pytest.raises(CaseError) as ei:
