@@ -4,6 +4,7 @@
     cfddem check CASE [--set K=V]...
     cfddem compare RUN_A RUN_B [--out DIR]
     cfddem sweep CASE --vary KEY=V1,V2,... [--scheduler ADDRESS] [--workers N]
+    cfddem stability CASE --vary KEY=V1,V2,... [--vary ...] [--out DIR]   (or --map drag|courant|cells)
     cfddem accuracy SWEEP_DIR [--reference NAME]
     cfddem beverloo SILO_CASE --widths B1,B2,... [--set K=V]... [--out DIR] [--workers N]
     cfddem report OUT
@@ -67,6 +68,10 @@ def _parser() -> argparse.ArgumentParser:
         add_sweep_parser = None
     if add_sweep_parser is not None:
         add_sweep_parser(sub)
+
+    from .stability import add_stability_parser
+
+    add_stability_parser(sub)
 
     from .silo_study import add_beverloo_parser
 
@@ -168,6 +173,10 @@ def _dispatch(args) -> int:
         from .sweep import run_sweep_from_args
 
         return run_sweep_from_args(args)
+    if args.command == "stability":
+        from .stability import run_stability_from_args
+
+        return run_stability_from_args(args)
     if args.command == "beverloo":
         from .silo_study import run_beverloo_from_args
 
