@@ -305,7 +305,7 @@ def draw_map(result: dict, path: str | Path) -> Path:
             first = False
         rule_colours = iter(("tab:red", "tab:orange", "tab:purple", "tab:brown", "tab:olive"))
         for line in result.get("lines", []):
-            col = "k" if line.get("kind") == "analytic" else next(rule_colours, "tab:red")
+            col = line.get("colour") or ("k" if line.get("kind") == "analytic" else next(rule_colours, "tab:red"))
             if line.get("panel") is not None and _key_text(line["panel"]) != pn:
                 continue
             style = "-" if line.get("kind") == "analytic" else "--"
@@ -323,7 +323,12 @@ def draw_map(result: dict, path: str | Path) -> Path:
                 pass
         if xlog:
             ax.set_xscale("log")
-        if not xnum:
+        if xnum:  # the grid's range (limit lines beyond it are cut)
+            xs = [float(p["values"][xkey]) for p in pts]
+            pad = 1.3 if xlog else None
+            ax.set_xlim((min(xs) / pad, max(xs) * pad) if xlog else
+                        (min(xs) - 0.05 * (max(xs) - min(xs) or 1.0), max(xs) + 0.05 * (max(xs) - min(xs) or 1.0)))
+        else:
             ax.set_xticks(range(len(xcats)), xcats)
         ax.set_xlabel(result.get("xlabel") or xkey)
         if ykey:
@@ -545,6 +550,51 @@ def case_step_limit(case) -> tuple[float, str]:
     return best
 
 
+# What the maps found (docs/stability.md; the JSON files under docs/stability/ hold every point,
+# tests/unit/test_stability.py checks these numbers against them).  Time-step maps: the map's
+# folder -> dt/t_c of the one-contact limit drawn on it (:func:`case_step_limit`), and the last
+# stable and first unstable setting, the same in both stiffness rows of every map.
+DT_MAPS = {
+    "verlet": (0.6366, 0.6132, 0.7831),  # undamped linear wall contact (cases/contact_verlet)
+    "chute_linear": (0.4329, 0.35, 0.6),  # chute, linear, e_n 0.97, e_t 0.33
+    "chute_hm": (0.2816, 0.35, 0.6),  # chute, Hertz-Mindlin, e 0.97: the one-contact limit is conservative
+    "shear_linear": (0.5020, 0.35, 0.6),  # shear cell under 4 kPa, linear, e_n = e_t = 0.5
+    "shear_hm": (0.0870, 0.07, 0.1),  # shear cell, Hertz-Mindlin with the thesis's e = 1e-4
+}
+# Courant map, TVD advection, gas alone: cell Reynolds number -> (last stable, first unstable) C
+COURANT_TVD = {1.0: (0.1392, 0.1957), 10.0: (0.5448, 0.7663), 100.0: (0.3873, 0.5448), 1000.0: (0.2753, 0.3873)}
+
+
+def predicted_step_limit(case) -> dict:
+    """The time step above which the case's run is predicted to fail: velocity Verlet on its
+    most limiting contact (:func:`case_step_limit`).  The time-step maps (:data:`DT_MAPS`: the
+    undamped contact, the chute and the shear cell under load, linear and Hertz-Mindlin) found
+    their boundary within one grid step of this limit (the Hertz-Mindlin chute one step above
+    it: there the limit is conservative), the runs beyond it stopped by the overlap check
+    (overlap > 0.5 R).  Returns dt, the ratio to cfddem check's t_c, which contact and mode set
+    it, the predicted cause and a sentence naming the source."""
+    from .simulation import collision_time
+
+    dt, where = case_step_limit(case)
+    tc = collision_time(case)
+    return {"dt": dt, "ratio": dt / tc, "where": where, "cause": OVERLAP,
+            "source": f"velocity Verlet on one contact ({where}), where the time-step maps of the chute and the "
+                      f"shear cell found their boundary (docs/stability.md)"}
+
+
+def courant_limit(cell_re: float) -> tuple[float, float]:
+    """The TVD advection's Courant limit the Courant map found at the cell Reynolds number
+    ``cell_re`` (:data:`COURANT_TVD`, interpolated in log-log between the rows, the end rows
+    beyond them): (last stable, first unstable)."""
+    res = sorted(COURANT_TVD)
+    x = min(max(math.log(max(cell_re, 1e-300)), math.log(res[0])), math.log(res[-1]))
+    out = []
+    for k in (0, 1):
+        ys = [math.log(COURANT_TVD[r][k]) for r in res]
+        out.append(math.exp(float(np.interp(x, [math.log(r) for r in res], ys))))
+    return out[0], out[1]
+
+
 def case_lines(case, xkey: str) -> list[dict]:
     """Limit lines of a dt/t_c map: velocity Verlet on one contact of the case
     (:func:`case_step_limit`, analytic; Hertz-Mindlin linearised at the impact speed), cfddem
@@ -559,10 +609,10 @@ def case_lines(case, xkey: str) -> list[dict]:
               "label": f"velocity Verlet on one contact ({where}): {dt / tc:.3g} t_c"}]
     if case.contact.model == "hertz_mindlin":
         tr = rayleigh_time(case)
-        lines.append({"x": 0.2 * tr / tc, "kind": "rule",
+        lines.append({"x": 0.2 * tr / tc, "kind": "rule", "colour": "tab:purple",
                       "label": f"0.2 T_R (cfddem check warns above): {0.2 * tr / tc:.3g} t_c"})
-    lines.append({"x": 0.05, "kind": "rule", "label": "t_c/20 (cfddem check warns above)"})
-    lines.append({"x": 0.2, "kind": "rule", "label": "t_c/5 (cfddem check refuses above)"})
+    lines.append({"x": 0.05, "kind": "rule", "colour": "tab:orange", "label": "t_c/20 (cfddem check warns above)"})
+    lines.append({"x": 0.2, "kind": "rule", "colour": "tab:red", "label": "t_c/5 (cfddem check refuses above)"})
     return lines
 
 
@@ -589,7 +639,16 @@ def run_case_map(case: str | Path, variants: list[dict], out: str | Path | None 
     keys = varied_keys(variants)
     x = x or keys[0]
     y = y if y is not None else (keys[1] if len(keys) > 1 else None)
-    panel = panel if panel is not None else (keys[2] if len(keys) > 2 else None)
+    if panel is None:  # the first other key that still varies at a fixed (x, y) (not one tied to y)
+        for k in keys:
+            if k in (x, y):
+                continue
+            seen: dict = {}
+            for v in variants:
+                seen.setdefault((_key_text(v.get(x)), _key_text(v.get(y))), set()).add(_key_text(v.get(k)))
+            if any(len(s) > 1 for s in seen.values()):
+                panel = k
+                break
     for k, opt in ((x, "--x"), (y, "--y"), (panel, "--panel")):
         if k is not None and k not in keys:
             raise CaseError(opt, f"{k!r} is not a varied key ({', '.join(keys)})")

@@ -168,3 +168,67 @@ def test_resolve_variant_sets_dt_from_the_collision_time(root):
         st.resolve_variant(case_arg, {"dt/t_c": -1.0}, {})
     assert st.own_setting(load_case(case_arg), "dt/t_c") == pytest.approx(1e-5 / collision_time(load_case(case_arg)))
     assert st.own_setting(load_case(case_arg), "contact.particle_wall.k_n") == 1000.0
+
+
+def test_tied_keys_make_no_panel(root, tmp_path, monkeypatch):
+    """Keys varied together (a --variants file setting both stiffnesses) are one axis, not
+    panels: only a key that still varies at a fixed (x, y) splits the map."""
+    calls = []
+
+    def fake_run(case_arg, ov, out_dir, threads):
+        calls.append(ov)
+        return {"status": "failed", "error": "run failed: step 3: particle id 1 has a non-finite position"}
+
+    monkeypatch.setattr("cfddem.sweep.run_variant", fake_run)
+    variants = [{"contact.particle_particle.k_n": k, "contact.particle_wall.k_n": k, "dt/t_c": r}
+                for k in (1000.0, 2000.0) for r in (0.1, 0.2)]
+    res = st.run_case_map(root / "cases" / "contact_verlet", variants, tmp_path, x="dt/t_c",
+                          y="contact.particle_particle.k_n", echo=None)
+    assert res["panel"] is None and len(calls) == 4 and all(ov["time.force"] for ov in calls)
+    assert {p["cause"] for p in res["points"]} == {st.NAN}
+
+
+def test_the_limits_check_uses_are_the_committed_maps(root):
+    """DT_MAPS and COURANT_TVD (what cfddem check reports) are the numbers of the maps in
+    docs/stability/, and every time-step map's boundary lies within one grid step of the
+    one-contact Verlet limit (or, for the Hertz-Mindlin chute, above it: conservative)."""
+    for name, (lim, lo, hi) in st.DT_MAPS.items():
+        res = json.loads((root / "docs" / "stability" / name / "stability.json").read_text())
+        assert res["lines"][0]["kind"] == "analytic" and res["lines"][0]["x"] == pytest.approx(lim, rel=1e-3)
+        assert {(r["last_stable"], r["first_unstable"]) for r in res["limits"]} == {(lo, hi)}
+        assert lo < lim < hi or (name == "chute_hm" and lim < lo)
+    res = json.loads((root / "docs" / "stability" / "courant" / "stability.json").read_text())
+    tvd = {r["y"]: (r["last_stable"], r["first_unstable"]) for r in res["limits"] if r["panel"] == "tvd"}
+    assert set(tvd) == set(st.COURANT_TVD)
+    for re_h, (a, b) in st.COURANT_TVD.items():
+        assert tvd[re_h] == (pytest.approx(a, rel=1e-3), pytest.approx(b, rel=1e-3))
+        assert st.courant_limit(re_h) == (pytest.approx(a), pytest.approx(b))
+    assert st.courant_limit(1e5) == pytest.approx(st.courant_limit(1000.0))  # beyond the map: its end row
+    assert st.courant_limit(31.6)[0] == pytest.approx(math.sqrt(0.5448 * 0.3873), rel=1e-3)  # log-log middle
+
+
+def test_check_predicts_the_failure(root, capsys):
+    """cfddem check names the predicted failure, the limit and its source; a step above the
+    one-contact limit of the thesis's Hertz-Mindlin shear cell (0.087 t_c, where the map's runs
+    fail) is refused although it is below t_c/5."""
+    from cfddem.config import load_case
+    from cfddem.simulation import check_time_step, collision_time
+
+    thesis = ["contact.model=\"hertz_mindlin\"", "particles.density=950.0", "contact.particle_particle.nu=0.4",
+              "contact.particle_wall.nu=0.4", "contact.particle_particle.e=1e-4", "contact.particle_wall.e=1e-4"]
+    case = load_case(root / "cases" / "shear_jenike", overrides=thesis)
+    pred = st.predicted_step_limit(case)
+    tc = collision_time(case)
+    assert pred["ratio"] == pytest.approx(0.0870, rel=2e-3) and pred["cause"] == st.OVERLAP
+    assert "tangential" in pred["where"] and "docs/stability.md" in pred["source"]
+    dt_bad = 0.1 * tc  # unstable on the map, between t_c/20 and t_c/5
+    with pytest.raises(CaseError, match=r"the run would fail \(overlap\)") as ei:
+        check_time_step(load_case(root / "cases" / "shear_jenike", overrides=thesis + [f"time.dt={dt_bad!r}"]))
+    assert ei.value.key == "time.dt"
+    assert check_time_step(load_case(root / "cases" / "shear_jenike",
+                                     overrides=thesis + [f"time.dt={0.07 * tc!r}"])) == pytest.approx(0.07)
+    assert main(["check", str(root / "cases" / "shear_jenike"), *[a for o in thesis for a in ("--set", o)],
+                 "--set", f"time.dt={dt_bad!r}"]) == 2
+    out, err = capsys.readouterr()
+    assert "stable step: " in out and "REFUSED: the run would fail, overlap" in out
+    assert "the run would fail (overlap)" in err
