@@ -44,7 +44,7 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--overwrite", action="store_true", help="replace an existing run folder")
     r.add_argument("--resume", action="store_true", help="continue the run in --out from its newest checkpoint")
     r.add_argument("--threads", type=int, help="numba threads (default: time.threads, 0 = all cores)")
-    r.add_argument("--force", action="store_true", help="run even when dt > t_c/5")
+    r.add_argument("--force", action="store_true", help="run even when dt > t_c/5 or above the stable step")
     r.add_argument("--quiet", action="store_true", help="no progress line, log to file only")
 
     c = sub.add_parser("check", help="validate a case and print its derived numbers")

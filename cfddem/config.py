@@ -176,7 +176,8 @@ SCHEMA: dict[str, dict] = {
         "max_steps": Key("int", 0, "-", "stop after this many steps (0: no limit)", lo=0),
         "wall_time_limit": _nonneg(0.0, "s", "stop (cleanly, with all outputs) after this wall time (0: no limit)"),
         "threads": Key("int", 0, "-", "numba threads (0: all cores)", lo=0),
-        "force": Key("bool", False, "-", "run even when dt > t_c/5 (otherwise refused)"),
+        "force": Key("bool", False, "-", "run even when dt > t_c/5 or above the stable step of one contact "
+                     "(otherwise refused, docs/stability.md)"),
     },
     "output": {
         "series_interval": _pos(0.005, "s", "interval of the /series/ time series in results.h5"),
@@ -783,11 +784,13 @@ Derived numbers (`cfddem check CASE`): particle mass; per contact pair the norma
 eta_n = -2 ln(e_n) sqrt(m* k_n) / sqrt(pi^2 + ln^2 e_n), k_t = (2/7) k_n (pi^2 + ln^2 e_t)/(pi^2 + ln^2 e_n),
 eta_t (with m_t = 2/7 m*), the collision time t_c = sqrt(m* (pi^2 + ln^2 e_n)/k_n) (m* = m/2
 particle-particle, m particle-wall); dt/t_c (warning above t_c/20, refused above t_c/5 unless
-`time.force = true` or `--force`); the expected particle count and memory.
+`time.force = true` or `--force`); the stable step: velocity Verlet on the most limiting contact,
+normal and tangential modes with their damping (refused above it unless forced: the run would fail;
+docs/stability.md); the expected particle count and memory.
 With `contact.model = "hertz_mindlin"`: E* = E/(2(1 - nu^2)), G* = E/(4(2 - nu)(1 + nu)), beta, and
 at the expected impact speed v (the case's speed scale, at least 1 m/s) the Hertz collision time
 t_c = 2.87 (m*^2/(R* E*^2 v))^(1/5) and the Rayleigh time T_R = pi R sqrt(rho/G)/(0.1631 nu + 0.8766);
-warning above dt = t_c/20 or 0.2 T_R, refused above t_c/5 unless forced.
+warning above dt = t_c/20 or 0.2 T_R, refused above t_c/5 or the stable step unless forced.
 
 This file is generated from `cfddem/config.py` (`python -m cfddem.config > docs/case-format.md`);
 a test keeps it current.

@@ -561,6 +561,8 @@ DT_MAPS = {
     "shear_linear": (0.5020, 0.35, 0.6),  # shear cell under 4 kPa, linear, e_n = e_t = 0.5
     "shear_hm": (0.0870, 0.07, 0.1),  # shear cell, Hertz-Mindlin with the thesis's e = 1e-4
 }
+# below this fraction of the one-contact limit every time-step map was stable (0.35 / 0.502)
+STABLE_FRACTION = min(lo / lim for lim, lo, hi in DT_MAPS.values() if lo < lim)
 # Courant map, TVD advection, gas alone: cell Reynolds number -> (last stable, first unstable) C
 COURANT_TVD = {1.0: (0.1392, 0.1957), 10.0: (0.5448, 0.7663), 100.0: (0.3873, 0.5448), 1000.0: (0.2753, 0.3873)}
 
@@ -572,12 +574,13 @@ def predicted_step_limit(case) -> dict:
     their boundary within one grid step of this limit (the Hertz-Mindlin chute one step above
     it: there the limit is conservative), the runs beyond it stopped by the overlap check
     (overlap > 0.5 R).  Returns dt, the ratio to cfddem check's t_c, which contact and mode set
-    it, the predicted cause and a sentence naming the source."""
+    it, the predicted cause, ``sure``: the step below which every map was stable
+    (:data:`STABLE_FRACTION` of dt), and a sentence naming the source."""
     from .simulation import collision_time
 
     dt, where = case_step_limit(case)
     tc = collision_time(case)
-    return {"dt": dt, "ratio": dt / tc, "where": where, "cause": OVERLAP,
+    return {"dt": dt, "ratio": dt / tc, "where": where, "cause": OVERLAP, "sure": STABLE_FRACTION * dt,
             "source": f"velocity Verlet on one contact ({where}), where the time-step maps of the chute and the "
                       f"shear cell found their boundary (docs/stability.md)"}
 

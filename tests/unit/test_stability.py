@@ -212,7 +212,7 @@ def test_check_predicts_the_failure(root, capsys):
     one-contact limit of the thesis's Hertz-Mindlin shear cell (0.087 t_c, where the map's runs
     fail) is refused although it is below t_c/5."""
     from cfddem.config import load_case
-    from cfddem.simulation import check_time_step, collision_time
+    from cfddem.simulation import check_time_step, collision_time, describe_case
 
     thesis = ["contact.model=\"hertz_mindlin\"", "particles.density=950.0", "contact.particle_particle.nu=0.4",
               "contact.particle_wall.nu=0.4", "contact.particle_particle.e=1e-4", "contact.particle_wall.e=1e-4"]
@@ -227,6 +227,14 @@ def test_check_predicts_the_failure(root, capsys):
     assert ei.value.key == "time.dt"
     assert check_time_step(load_case(root / "cases" / "shear_jenike",
                                      overrides=thesis + [f"time.dt={0.07 * tc!r}"])) == pytest.approx(0.07)
+    states = {}
+    for r in (0.05, 0.07, 0.1):
+        text = "\n".join(describe_case(load_case(root / "cases" / "shear_jenike",
+                                                 overrides=thesis + [f"time.dt={r * tc!r}", "time.force=true"])))
+        states[r] = text.split("stable step: ")[1].split("(")[1].split(")")[0]
+    assert states == {0.05: "OK", 0.07: "WARNING: within a grid step of the maps' failures",
+                      0.1: "REFUSED: the run would fail, overlap"}
+    assert st.STABLE_FRACTION == pytest.approx(0.35 / 0.502, rel=1e-3)
     assert main(["check", str(root / "cases" / "shear_jenike"), *[a for o in thesis for a in ("--set", o)],
                  "--set", f"time.dt={dt_bad!r}"]) == 2
     out, err = capsys.readouterr()
