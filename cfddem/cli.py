@@ -4,6 +4,7 @@
     cfddem check CASE [--set K=V]...
     cfddem compare RUN_A RUN_B [--out DIR]
     cfddem sweep CASE --vary KEY=V1,V2,... [--scheduler ADDRESS] [--workers N]
+    cfddem stability CASE --vary KEY=V1,V2,... [--vary ...] [--out DIR]   (or --map drag|courant|cells)
     cfddem accuracy SWEEP_DIR [--reference NAME]
     cfddem beverloo SILO_CASE --widths B1,B2,... [--set K=V]... [--out DIR] [--workers N]
     cfddem report OUT
@@ -43,7 +44,7 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--overwrite", action="store_true", help="replace an existing run folder")
     r.add_argument("--resume", action="store_true", help="continue the run in --out from its newest checkpoint")
     r.add_argument("--threads", type=int, help="numba threads (default: time.threads, 0 = all cores)")
-    r.add_argument("--force", action="store_true", help="run even when dt > t_c/5")
+    r.add_argument("--force", action="store_true", help="run even when dt > t_c/5 or above the stable step")
     r.add_argument("--quiet", action="store_true", help="no progress line, log to file only")
 
     c = sub.add_parser("check", help="validate a case and print its derived numbers")
@@ -67,6 +68,10 @@ def _parser() -> argparse.ArgumentParser:
         add_sweep_parser = None
     if add_sweep_parser is not None:
         add_sweep_parser(sub)
+
+    from .stability import add_stability_parser
+
+    add_stability_parser(sub)
 
     from .silo_study import add_beverloo_parser
 
@@ -169,6 +174,10 @@ def _dispatch(args) -> int:
         from .sweep import run_sweep_from_args
 
         return run_sweep_from_args(args)
+    if args.command == "stability":
+        from .stability import run_stability_from_args
+
+        return run_stability_from_args(args)
     if args.command == "beverloo":
         from .silo_study import run_beverloo_from_args
 

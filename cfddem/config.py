@@ -64,7 +64,8 @@ SCHEMA: dict[str, dict] = {
         "max_steps": Key("int", 0, "-", "stop after this many steps (0: no limit)", lo=0),
         "wall_time_limit": _nonneg(0.0, "s", "stop (cleanly, with all outputs) after this wall time (0: no limit)"),
         "threads": Key("int", 0, "-", "numba threads (0: all cores)", lo=0),
-        "force": Key("bool", False, "-", "run even when dt > t_c/5 (otherwise refused)"),
+        "force": Key("bool", False, "-", "run even when dt > t_c/5 or above the stable step of one contact "
+                     "(otherwise refused, docs/stability.md)"),
     },
     "output": {
         "series_interval": _pos(0.005, "s", "interval of the /series/ time series in results.h5"),
@@ -659,7 +660,9 @@ g (0, -cos theta, sin theta) with theta = `gravity.inclination_deg`; the frame r
 vertical (the direction of -gravity) through `frame.axis_point`.
 
 Derived numbers (`cfddem check CASE`): particle mass; per contact pair {default_law_numbers}; dt/t_c (warning above t_c/20, refused above t_c/5 unless
-`time.force = true` or `--force`); the expected particle count and memory.
+`time.force = true` or `--force`); the stable step: velocity Verlet on the most limiting contact,
+normal and tangential modes with their damping (refused above it unless forced: the run would fail;
+docs/stability.md); the expected particle count and memory.
 {other_law_numbers}
 This file is generated from `cfddem/config.py` (`python -m cfddem.config > docs/case-format.md`);
 a test keeps it current.

@@ -760,11 +760,24 @@ def has_particles(case: Case) -> bool:
 
 
 def check_time_step(case: Case, log=None) -> float:
-    """dt / t_c; warns above 1/20, refuses above 1/5 unless time.force (no particles: 0)."""
+    """dt / t_c; refuses (unless time.force) above the stable step the stability maps predict
+    (velocity Verlet on the case's most limiting contact, docs/stability.md) and above 1/5;
+    warns above 1/20 (no particles: 0)."""
     if not has_particles(case):
         return 0.0
+    from .stability import predicted_step_limit
+
     tc = collision_time(case)
     ratio = case.time.dt / tc
+    pred = predicted_step_limit(case)
+    if case.time.dt > pred["dt"] and not case.time.force:
+        raise CaseError("time.dt", f"{case.time.dt:g} s = {ratio:.3g} t_c: the run would fail ({pred['cause']}): above "
+                                   f"the stable step {pred['dt']:.3g} s = {pred['ratio']:.3g} t_c of velocity Verlet on "
+                                   f"one {pred['where']} contact (docs/stability.md); reduce it or set time.force = true")
+    if case.time.dt > pred["sure"] and log is not None:
+        log.warning("time.dt = %g s is %.2f of the stable step %.3g s (velocity Verlet on one %s contact): the "
+                    "stability maps had failures within a grid step of it (docs/stability.md)", case.time.dt,
+                    case.time.dt / pred["dt"], pred["dt"], pred["where"])
     if ratio > 0.2 and not case.time.force:
         raise CaseError("time.dt", f"{case.time.dt:g} s is {ratio * 20:.1f} t_c/20 (t_c = {tc:.3g} s): above t_c/5 "
                                    "the contacts are not resolved; reduce it or set time.force = true")
@@ -815,8 +828,15 @@ def describe_case(case: Case) -> list[str]:
             lines.append(f"Rayleigh time T_R = {tr:.4g} s: dt = {case.time.dt / tr:.3g} T_R "
                          f"({'OK' if case.time.dt <= 0.2 * tr else 'WARNING: above 0.2 T_R'})")
         ratio = case.time.dt / collision_time(case)
+        from .stability import predicted_step_limit
+
+        pred = predicted_step_limit(case)
         lines.append(f"time step: dt = {case.time.dt:g} s = t_c/{1 / ratio:.1f} "
                      f"({'OK' if ratio <= 0.05 else 'WARNING: above t_c/20' if ratio <= 0.2 else 'REFUSED: above t_c/5'})")
+        lines.append(f"stable step: {pred['dt']:.3g} s = {pred['ratio']:.3g} t_c, dt is {case.time.dt / pred['dt']:.3g} of it "
+                     + ("(OK)" if case.time.dt <= pred["sure"] else "(WARNING: within a grid step of the maps' failures)"
+                        if case.time.dt <= pred["dt"] else f"(REFUSED: the run would fail, {pred['cause']})")
+                     + f"; source: {pred['source']}")
     g = gravity_vector(case)
     om = frame_omega(case)
     lines.append(f"gravity: ({g[0]:.4g}, {g[1]:.4g}, {g[2]:.4g}) m/s2; frame rotation: "
@@ -839,6 +859,15 @@ def describe_case(case: Case) -> list[str]:
         n_rec = recommended_coupling_interval(case)
         lines.append(f"gas: recommended coupling interval {n_rec} particle steps (gas step {n_rec * case.time.dt:.3g} s: "
                      f"gas CFL <= 0.3 at the fastest expected flow); the case uses {case.gas.coupling_interval}")
+        from .stability import courant_limit
+
+        h = min(case.geometry.width / case.gas.cells[0], case.gas.height / case.gas.cells[1],
+                case.geometry.length / case.gas.cells[2])
+        re_h = case.gas.density * max(expected_max_speed(case), 1e-9) * h / case.gas.viscosity
+        c_ok, c_bad = courant_limit(re_h)
+        lines.append(f"gas: at the cell Reynolds number {re_h:.3g} (fastest expected flow, smallest cell) the Courant "
+                     f"map (gas alone) found the TVD advection stable up to C = {c_ok:.2g} and growing from C = {c_bad:.2g}; "
+                     f"explicit drag needs dt_g < 2 tau (docs/stability.md)")
     else:
         lines.append("gas: off (no gas solver is built)")
     return lines

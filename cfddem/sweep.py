@@ -803,7 +803,7 @@ def add_sweep_parser(subparsers) -> Any:
     s.add_argument("--chart", metavar="NAME",
                    help="measurement to chart against the first varied key (default: the first one "
                         "that differs between the variants, see docs/sweeps.md)")
-    s.add_argument("--force", action="store_true", help="run variants even when dt > t_c/5")
+    s.add_argument("--force", action="store_true", help="run variants even when dt > t_c/5 or above the stable step")
     return s
 
 

@@ -238,6 +238,10 @@ class ShearCellScene(Scene):
     def inserts_clumps(cls, r: dict) -> bool:
         return True
 
+    @classmethod
+    def speed_scale(cls, case) -> float:
+        return float(case.shear.shear_speed)  # the ring and lid; the fill falls slower than 1 m/s
+
     def __init__(self, sim):
         super().__init__(sim)
         s = self.case.resolved["shear"]

@@ -57,7 +57,9 @@ def test_unknown_command_and_option():
 
 
 def test_dt_refused_and_warned(tmp_path):
-    one_line_error(["check", str(CASES / "chute_0rpm"), "--set", "time.dt=2e-4"], "above t_c/5")
+    one_line_error(["check", str(CASES / "chute_0rpm"), "--set", "time.dt=1.5e-4"], "above t_c/5")  # 0.36 t_c
+    # 0.47 t_c: above the stable step of one contact (0.433 t_c, docs/stability.md): the failure predicted
+    one_line_error(["check", str(CASES / "chute_0rpm"), "--set", "time.dt=2e-4"], "the run would fail (overlap)")
     code, err, out = run_cli("check", str(CASES / "chute_0rpm"), "--set", "time.dt=4e-5")
     assert code == 0 and "WARNING: above t_c/20" in out and any("t_c/20" in e for e in err)
 
