@@ -224,10 +224,27 @@ def pair_forces(npairs, pi, pj, pos, vel, omg, radius, mass, inertia, params, pe
     return ovmax
 
 
+@kernel(inline="always")
+def _rolling_step(tmax, inert, dt, pwx, pwy, pwz):
+    """Rolling torque of one wall contact with limit ``tmax`` = mu_r R |F_n| on a particle whose
+    spin predicted without it is pw: -I pw/dt if that is within the limit (the spin stops), else
+    -tmax pw/|pw|; zero if pw = 0."""
+    pw = math.sqrt(pwx * pwx + pwy * pwy + pwz * pwz)
+    if pw == 0.0:
+        return 0.0, 0.0, 0.0
+    tstop = inert * pw / dt
+    if tstop <= tmax:
+        s = -inert / dt
+    else:
+        s = -tmax / pw
+    return s * pwx, s * pwy, s * pwz
+
+
 @parallel_kernel
 def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ext_f, ext_t, has_ext,
                       pf, pr, has_roll, first_start, second_start, second_list,
                       wgeom, wref, wpar, nw, whist, won, wfw, wtw, wfn,
+                      has_mesh, K, ms_mesh, ms_fn, ms_tw, mpar, mf, mt,
                       gx, gy, gz, omx, omy, omz, cax, cay, caz,
                       dt, dt_hist, kick, rotating, Rv, Rw, drift_next, periodic_len, plo, ref, held):
     """Sum pair forces per particle (fixed order), add walls, gravity, centrifugal force, store
@@ -237,6 +254,11 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
     with w' = w + dt (T + T_ext)/I the spin predicted without it, the rolling torque of a wall
     contact is T_r = -I w'/dt if |I w'/dt| <= mu_r R |F_n| (the spin stops exactly: static rolling
     resistance) else -mu_r R |F_n| w'/|w'|.  It never reverses the spin within the step.
+
+    Mesh walls (``has_mesh``): their contact forces and torques were summed per particle into
+    mf, mt by :func:`cfddem.particles.mesh.mesh_forces`; they are added after the analytic walls,
+    and their rolling friction (slots ``ms_mesh``, |F_n| ``ms_fn``, parameters ``mpar``) follows
+    the analytic walls' in the same way.
 
     With ``drift_next`` the opening half kick and the drift of the *next* step follow at once
     (the same operations as :func:`kick_drift`, so results do not depend on the fusion; it
@@ -375,6 +397,16 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
                     whist[i, w, c] = 0.0
                     wfw[i, w, c] = 0.0
                     wtw[i, w, c] = 0.0
+        if has_mesh:
+            fx += mf[i, 0]
+            fy += mf[i, 1]
+            fz += mf[i, 2]
+            tx += mt[i, 0]
+            ty += mt[i, 1]
+            tz += mt[i, 2]
+            for s in range(K):
+                if ms_mesh[i, s] >= 0 and mpar[ms_mesh[i, s], P_MUR] > 0.0:
+                    anyroll = True
         if anyroll:
             pwx = wx + dt * (tx + etx) / inert
             pwy = wy + dt * (ty + ety) / inert
@@ -383,18 +415,7 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
                 mur = wpar[w, P_MUR]
                 if won[i, w] == 0 or mur == 0.0:
                     continue
-                tmax = mur * r * wfn[i, w]
-                pw = math.sqrt(pwx * pwx + pwy * pwy + pwz * pwz)
-                if pw == 0.0:
-                    continue
-                tstop = inert * pw / dt
-                if tstop <= tmax:
-                    s = -inert / dt
-                else:
-                    s = -tmax / pw
-                rx = s * pwx
-                ry = s * pwy
-                rz = s * pwz
+                rx, ry, rz = _rolling_step(mur * r * wfn[i, w], inert, dt, pwx, pwy, pwz)
                 tx += rx
                 ty += ry
                 tz += rz
@@ -404,6 +425,24 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
                 wtw[i, w, 0] -= rx
                 wtw[i, w, 1] -= ry
                 wtw[i, w, 2] -= rz
+            if has_mesh:
+                for s in range(K):
+                    mm = ms_mesh[i, s]
+                    if mm < 0:
+                        continue
+                    mur = mpar[mm, P_MUR]
+                    if mur == 0.0:
+                        continue
+                    rx, ry, rz = _rolling_step(mur * r * ms_fn[i, s], inert, dt, pwx, pwy, pwz)
+                    tx += rx
+                    ty += ry
+                    tz += rz
+                    pwx += dt * rx / inert
+                    pwy += dt * ry / inert
+                    pwz += dt * rz / inert
+                    ms_tw[i, s, 0] -= rx
+                    ms_tw[i, s, 1] -= ry
+                    ms_tw[i, s, 2] -= rz
         # body forces: gravity and centrifugal -m Omega x (Omega x (r - r_axis))
         fx += m * gx
         fy += m * gy
@@ -546,6 +585,20 @@ def elastic_energy(npairs, pi, pj, pos, radius, periodic_len, hist, pp, n, wgeom
             if ov > 0.0:
                 e += _spring_energy(wpar[w, P_MODEL], wpar[w, P_KN], wpar[w, P_KT], radius[i], ov,
                                     whist[i, w, 0], whist[i, w, 1], whist[i, w, 2])
+    return e
+
+
+@kernel
+def mesh_elastic_energy(n, K, ms_mesh, ms_ov, ms_h, mpar, radius):
+    """Energy in the springs of the mesh-wall contacts at the last evaluation (slots of
+    :mod:`cfddem.particles.mesh`), see :func:`_spring_energy`."""
+    e = 0.0
+    for i in range(n):
+        for s in range(K):
+            m = ms_mesh[i, s]
+            if m >= 0:
+                e += _spring_energy(mpar[m, P_MODEL], mpar[m, P_KN], mpar[m, P_KT], radius[i], ms_ov[i, s],
+                                    ms_h[i, s, 0], ms_h[i, s, 1], ms_h[i, s, 2])
     return e
 
 
