@@ -341,6 +341,78 @@ class MeshWall:
         return out
 
 
+# ---------------------------------------------------------------------- simple surfaces
+
+
+def grid_surface(origin, u, v, nu: int, nv: int):
+    """Parallelogram origin + a u + b v (0 <= a, b <= 1) split into nu x nv cells of two
+    triangles each, every cell cut along the same diagonal (an interior vertex is shared by six
+    triangles); normal u x v.  Returns (vertices, triangles)."""
+    o, u, v = (np.asarray(a, float) for a in (origin, u, v))
+    a, b = np.meshgrid(np.linspace(0, 1, nu + 1), np.linspace(0, 1, nv + 1), indexing="ij")
+    V = o + a.reshape(-1, 1) * u + b.reshape(-1, 1) * v
+    i, j = np.meshgrid(np.arange(nu), np.arange(nv), indexing="ij")
+    p = (i * (nv + 1) + j).reshape(-1)
+    F = np.concatenate([np.stack([p, p + nv + 2, p + 1], 1), np.stack([p, p + nv + 1, p + nv + 2], 1)])
+    return V, F
+
+
+def box_surface(lo, hi, n: int = 1, inward: bool = True):
+    """Closed surface of the box lo..hi, each face split into n x n cells (12 n^2 triangles);
+    normals point inwards (particles inside) unless ``inward=False``.  Returns (V, F), V with
+    duplicate vertices along the box edges (MeshWall welds them)."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    L = hi - lo
+    Vs, Fs, off = [], [], 0
+    for a in range(3):
+        b, c = (a + 1) % 3, (a + 2) % 3
+        eb, ec = np.zeros(3), np.zeros(3)
+        eb[b], ec[c] = L[b], L[c]
+        for side in (0, 1):
+            o = lo.copy()
+            o[a] = hi[a] if side else lo[a]
+            # eb x ec points along +a: inwards on the low face
+            V, F = grid_surface(o, eb, ec, n, n) if side == 0 else grid_surface(o, ec, eb, n, n)
+            Vs.append(V)
+            Fs.append(F + off)
+            off += len(V)
+    F = np.concatenate(Fs)
+    return np.concatenate(Vs), (F if inward else F[:, [0, 2, 1]])
+
+
+def cylinder_surface(center, axis, radius: float, length: float, n_around: int, n_along: int = 1,
+                     caps: bool = True, inward: bool = True):
+    """Closed (``caps``) or open surface of a cylinder of ``radius`` and ``length`` about
+    ``axis`` through ``center``: a prism with n_around sides whose faces' mid-lines lie on the
+    radius (vertices at radius / cos(pi / n_around)), caps as fans.  Normals point inwards
+    (particles inside: a drum) unless ``inward=False``.  Returns (V, F)."""
+    c = np.asarray(center, float)
+    k = np.asarray(axis, float) / np.linalg.norm(axis)
+    e1 = np.cross(k, [1.0, 0, 0] if abs(k[0]) < 0.9 else [0, 1.0, 0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(k, e1)
+    rv = radius / math.cos(math.pi / n_around)
+    th = 2 * math.pi * np.arange(n_around) / n_around
+    ring = rv * (np.cos(th)[:, None] * e1 + np.sin(th)[:, None] * e2)
+    s = np.linspace(-0.5 * length, 0.5 * length, n_along + 1)
+    V = (c + s[:, None, None] * k + ring[None]).reshape(-1, 3)
+    F = []
+    for a in range(n_along):
+        for j in range(n_around):
+            p, q = a * n_around + j, a * n_around + (j + 1) % n_around
+            F += [[p, q, q + n_around], [p, q + n_around, p + n_around]]
+    F = np.array(F)  # (ring j -> j+1) x axis points outwards: flip below for inward
+    if caps:
+        nv = len(V)
+        V = np.vstack([V, c - 0.5 * length * k, c + 0.5 * length * k])
+        j = np.arange(n_around)
+        top = n_along * n_around
+        bottom_fan = np.stack([np.full(n_around, nv), (j + 1) % n_around, j], 1)
+        top_fan = np.stack([np.full(n_around, nv + 1), top + j, top + (j + 1) % n_around], 1)
+        F = np.vstack([F, bottom_fan, top_fan])
+    return V, (F[:, [0, 2, 1]] if inward else F)
+
+
 # ---------------------------------------------------------------------- packed tables
 
 

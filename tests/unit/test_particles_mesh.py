@@ -11,7 +11,8 @@ import pytest
 from cfddem.errors import CaseError
 from cfddem.particles import (HertzMindlinContact, LinearContact, MeshWall, ParticleSystem, PlaneWall,
                               RectangleWall)
-from cfddem.particles.mesh import EDGE, FACE, VERTEX, mesh_closest_py, triangle_rows
+from cfddem.particles.mesh import (EDGE, FACE, VERTEX, box_surface, grid_surface, mesh_closest_py,
+                                   triangle_rows)
 
 R, RHO = 1.5e-3, 2550.0
 M = RHO * 4.0 / 3.0 * math.pi * R**3
@@ -19,29 +20,9 @@ C = LinearContact(k_n=1000.0, e_n=0.5, e_t=0.5, mu=0.3, mu_r=0.02)
 
 
 def grid(n=4, half=0.02, y=0.0):
-    """Flat square mesh in the plane y, normal +y, (2 n^2) triangles; each interior vertex is
-    shared by six triangles (the cells are split along one diagonal)."""
-    xs = np.linspace(-half, half, n + 1)
-    X, Z = np.meshgrid(xs, xs, indexing="ij")
-    V = np.stack([X.ravel(), np.full(X.size, y), Z.ravel()], 1)
-    F = []
-    for i in range(n):
-        for j in range(n):
-            a = i * (n + 1) + j
-            F += [[a, a + 1, a + n + 2], [a, a + n + 2, a + n + 1]]
-    return V, np.array(F)
-
-
-def box(lo, hi):
-    """Closed box (12 triangles) with inward normals (particles inside)."""
-    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
-    V = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    # outward-oriented quads (corner indices x*4 + y*2 + z), then flipped to point inwards
-    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
-    F = []
-    for a, b, c, d in quads:
-        F += [[a, b, c], [a, c, d]]
-    return V, np.array(F)[:, [0, 2, 1]]
+    """Flat square mesh |x|, |z| <= half in the plane y, normal +y, 2 n^2 triangles; each
+    interior vertex is shared by six triangles."""
+    return grid_surface((-half, y, -half), (0, 0, 2 * half), (2 * half, 0, 0), n, n)
 
 
 def one_eval(walls, x, vel=(0.0, 0.0, 0.0), omega=(0.0, 0.0, 0.0), law=C):
@@ -131,7 +112,7 @@ def test_concave_corner_gives_two_plane_contacts(angle_deg):
 def test_convex_edge_and_corner_of_a_box_one_contact():
     """Outside a closed box (normals outwards): beyond an edge and beyond a corner the sphere
     gets one contact at the edge / corner point, of overlap R - |x - q|."""
-    V, F = box((-0.01, -0.01, -0.01), (0.01, 0.01, 0.01))
+    V, F = box_surface((-0.01, -0.01, -0.01), (0.01, 0.01, 0.01))
     m = MeshWall(V, F, C, flip_normals=True)
     assert m.closed and m.signed_volume > 0
     d = 0.7 * R
@@ -145,7 +126,7 @@ def test_convex_edge_and_corner_of_a_box_one_contact():
 
 
 def test_inside_box_corner_three_contacts():
-    V, F = box((0, 0, 0), (0.02, 0.02, 0.02))
+    V, F = box_surface((0, 0, 0), (0.02, 0.02, 0.02))
     m = MeshWall(V, F, C)
     assert m.closed and m.signed_volume < 0
     s = one_eval([m], (0.9 * R, 0.8 * R, 0.7 * R))
@@ -165,7 +146,7 @@ def _write_binary_stl(path, tri_pts):
 
 
 def test_read_stl_binary_ascii_and_obj(tmp_path):
-    V, F = box((0, 0, 0), (20.0, 10.0, 30.0))  # millimetres
+    V, F = box_surface((0, 0, 0), (20.0, 10.0, 30.0))  # millimetres
     _write_binary_stl(tmp_path / "b.stl", V[F])
     meshio.write(tmp_path / "a.stl", meshio.Mesh(V, [("triangle", F)]), binary=False)
     quads = np.array([[0, 1, 3, 2]])  # an OBJ quad is split into two triangles
