@@ -360,9 +360,21 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
                 sx = r * wx
                 sy = r * wy
                 sz = r * wz
-                rvx = vx - wgeom[w, 16] + sy * az_ - sz * ay_
-                rvy = vy - wgeom[w, 17] + sz * ax_ - sx * az_
-                rvz = vz - wgeom[w, 18] + sx * ay_ - sy * ax_
+                # surface velocity: v + spin n x (q - p) (spin about the wall's own axis)
+                wvx = wgeom[w, 16]
+                wvy = wgeom[w, 17]
+                wvz = wgeom[w, 18]
+                spin = wgeom[w, 19]
+                if spin != 0.0:
+                    lx = qx - wgeom[w, 1]
+                    ly = qy - wgeom[w, 2]
+                    lz = qz - wgeom[w, 3]
+                    wvx += spin * (wgeom[w, 5] * lz - wgeom[w, 6] * ly)
+                    wvy += spin * (wgeom[w, 6] * lx - wgeom[w, 4] * lz)
+                    wvz += spin * (wgeom[w, 4] * ly - wgeom[w, 5] * lx)
+                rvx = vx - wvx + sy * az_ - sz * ay_
+                rvy = vy - wvy + sz * ax_ - sx * az_
+                rvz = vz - wvz + sx * ay_ - sy * ax_
                 cfx, cfy, cfz, ctx, cty, ctz, hx, hy, hz, fnabs = pair_law(
                     wpar[w, P_MODEL], wpar[w, P_KN], wpar[w, P_CN], wpar[w, P_KT], wpar[w, P_CT],
                     wpar[w, P_MU], m, r, ov, ax_, ay_, az_, rvx, rvy, rvz,

@@ -235,6 +235,13 @@ def test_rotating_plate_drags_sphere_with_its_surface_velocity():
     # the plate has turned by 0.4 rad: its vertices too
     Rz = np.array([[math.cos(0.4), 0, math.sin(0.4)], [0, 1, 0], [-math.sin(0.4), 0, math.cos(0.4)]])
     np.testing.assert_allclose(s.mesh_vertices("disk"), V @ Rz.T, atol=1e-12)
+    # the analytic plane with the same spin about its normal gives the same motion
+    p = ParticleSystem(pp=C, walls=[PlaneWall(contact=C, point=(0, 0, 0), normal=(0, 1, 0), spin=2.0)],
+                       dt=1e-5, gravity=(0, -9.81, 0))
+    p.add_particles([[0.01, R - 2e-5, 0.0]], 0.0, R, RHO)
+    assert p.step(20000).ok
+    np.testing.assert_allclose(s.pos, p.pos, rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(s.omega, p.omega, rtol=1e-7)
 
 
 def test_gate_schedule_switches_mesh():

@@ -169,3 +169,47 @@ def test_mesh_box_fill_packs_like_six_planes():
           f"{max(v for _, v in hp + hm):.2g} m/s")
     assert max(v for _, v in hp + hm) < 0.01  # settled
     assert abs(ym.mean() - yp.mean()) < 3 * scatter
+
+
+def _drum(mesh: bool, seed: int, rpm=30.0, Rd=0.025, Ld=0.012, n=300, t_settle=1.0, t_avg=1.0):
+    """A drum (axis z, horizontal, gravity -y) of radius Rd and length Ld rotating at ``rpm``
+    with n spheres: the time-averaged torque about the axis that the spheres exert on it
+    (sampled every 1 ms over t_avg after t_settle)."""
+    law = LinearContact(k_n=2000.0, e_n=0.5, e_t=0.5, mu=0.4)
+    w = 2.0 * math.pi * rpm / 60.0
+    if mesh:
+        walls = [MeshWall(*cylinder_surface((0, 0, 0), (0, 0, 1), Rd, Ld, 64), law,
+                          angular_velocity=(0, 0, w), center=(0, 0, 0), name="drum")]
+    else:
+        walls = [CylinderWall(contact=law, point=(0, 0, 0), axis=(0, 0, 1), radius=Rd, half_height=Ld / 2,
+                              spin=w, name="drum"),
+                 PlaneWall(contact=law, point=(0, 0, -Ld / 2), normal=(0, 0, 1), spin=w),
+                 PlaneWall(contact=law, point=(0, 0, Ld / 2), normal=(0, 0, -1), spin=-w)]
+    s = ParticleSystem(pp=law, walls=walls, dt=1e-5, gravity=(0.0, -G, 0.0))
+    rng = np.random.default_rng(seed)
+    g = np.arange(-Rd + 1.2 * R, Rd - 1.2 * R, 2.2 * R)
+    X, Y, Z = np.meshgrid(g, g, np.arange(-Ld / 2 + 1.2 * R, Ld / 2 - 1.1 * R, 2.2 * R), indexing="ij")
+    pos = np.c_[X.ravel(), Y.ravel(), Z.ravel()]
+    pos = pos[np.hypot(pos[:, 0], pos[:, 1]) < Rd - 1.3 * R]
+    pos = pos[np.argsort(pos[:, 1], kind="stable")][:n] + rng.uniform(-0.05 * R, 0.05 * R, (n, 3))
+    s.add_particles(pos, 0.0, R, RHO)
+    assert s.step(int(round(t_settle / 1e-5))).ok
+    tq = []
+    for _ in range(int(round(t_avg / 1e-3))):
+        assert s.step(100).ok
+        tq.append(s.mesh_torques()[0, 2] if mesh else float(np.sum(s.wall_torques()[:, 2])))
+    return float(np.mean(tq))
+
+
+@pytest.mark.slow
+def test_rotating_mesh_drum_torque_equals_analytic_cylinder():
+    """A 64-sided mesh drum with end caps and the analytic rotating cylinder with two spinning
+    end plates, 300 spheres at 30 rpm: the same mean torque within the seed-to-seed scatter."""
+    ta = np.array([_drum(False, seed) for seed in range(3)])
+    tm = np.array([_drum(True, seed) for seed in range(3)])
+    scatter = max(np.std(ta, ddof=1), np.std(tm, ddof=1))
+    mg_r = 300 * M * G * 0.025
+    print(f"drum torque: analytic {ta.mean() * 1e6:.3f} +- {np.std(ta, ddof=1) * 1e6:.3f} uN m, "
+          f"mesh {tm.mean() * 1e6:.3f} +- {np.std(tm, ddof=1) * 1e6:.3f} uN m (M g R_drum = {mg_r * 1e6:.1f} uN m)")
+    assert abs(ta.mean()) > 0.1 * mg_r  # the bed is lifted: a real torque
+    assert abs(tm.mean() - ta.mean()) < 3 * scatter + 0.01 * abs(ta.mean())
