@@ -765,7 +765,7 @@ def mesh_forces(n, pos, vel, omg, radius, mass, cstart, clist, T, tmesh, tedge, 
         mstat[i, 0] = 1.0 if o > 0 else 0.0
         taken = _match_slots(i, r, nnew, K, mc, ms_mesh, ms_n, ms_q, ms_h)
         for s in range(K):
-            if ((taken >> s) & 1) == 0:
+            if ((taken >> s) & 1) == 0 and ms_mesh[i, s] >= 0:  # a contact that ended
                 ms_mesh[i, s] = -1
                 ms_ov[i, s] = 0.0
                 ms_fn[i, s] = 0.0

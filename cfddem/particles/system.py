@@ -668,6 +668,22 @@ class ParticleSystem:
         """(nv, 3) current vertex positions of mesh wall ``wall`` (triangles: ``meshes[k].triangles``)."""
         return self._mt.vertices_now(self._mesh_index(wall))
 
+    def mesh_surfaces(self) -> dict:
+        """All mesh walls now, for ParaView (:meth:`cfddem.io.vtk.ParaViewOutput.write`):
+        dict(vertices (nv, 3), triangles (nt, 3), mesh (nt,) index into ``meshes``, moving:
+        whether any mesh moves)."""
+        Vs, Fs, ks, off = [], [], [], 0
+        for k, m in enumerate(self.meshes):
+            Vs.append(self._mt.vertices_now(k))
+            Fs.append(m.triangles + off)
+            ks.append(np.full(m.n_triangles, k, np.int64))
+            off += len(m.vertices)
+        if not Vs:
+            return dict(vertices=np.zeros((0, 3)), triangles=np.zeros((0, 3), np.int64),
+                        mesh=np.zeros(0, np.int64), moving=False)
+        return dict(vertices=np.concatenate(Vs), triangles=np.concatenate(Fs), mesh=np.concatenate(ks),
+                    moving=bool(len(self._mt.moving())))
+
     def _reduce_meshes(self):
         fo = np.zeros((max(self.nm, 1), 3))
         to = np.zeros((max(self.nm, 1), 3))

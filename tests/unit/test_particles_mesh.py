@@ -294,3 +294,25 @@ def test_binned_search_and_thread_independence():
     st = out[0].mesh_stats()
     assert st["triangles"] == 800 and st["contacts"] > 0
     assert st["candidates_per_particle"] < 12  # against 800 without binning
+
+
+def test_paraview_meshes_per_frame_when_moving(tmp_path):
+    from cfddem.io.vtk import ParaViewOutput
+
+    V, F = grid(2, 0.01)
+    still = MeshWall(V + [0, -0.05, 0], F, C, name="floor")
+    blade = MeshWall(V, F, C, angular_velocity=(0, 3.0, 0), center=(0, 0, 0), name="blade")
+    for walls, files in (([still], {"meshes.vtu"}), ([still, blade], {"meshes/meshes_000000.vtu", "meshes/meshes_000001.vtu"})):
+        out = ParaViewOutput(tmp_path / str(len(walls)))
+        s = ParticleSystem(pp=C, walls=walls, dt=1e-4)
+        for _ in range(2):
+            s.step(10)
+            out.write(s.time, np.zeros((0, 3)), np.zeros(0), meshes=s.mesh_surfaces())
+        d = tmp_path / str(len(walls)) / "vtk"
+        entries = {ds.split('file="')[1].split('"')[0] for ds in (d / "meshes.pvd").read_text().splitlines() if "file=" in ds}
+        assert entries == files
+        back = meshio.read(d / sorted(files)[-1])
+        k = back.cell_data["mesh"][0]
+        assert len(k) == 8 * len(walls) and set(k.tolist()) == set(range(len(walls)))
+        np.testing.assert_allclose(back.points[back.cells[0].data[k == len(walls) - 1]],
+                                   s.mesh_vertices(len(walls) - 1)[walls[-1].triangles], atol=1e-15)
