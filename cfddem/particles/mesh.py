@@ -50,7 +50,8 @@ v + w x (q - c(t)).  ``schedule`` switches a mesh on and off at set times (a gat
 
 Search (:func:`tri_cell_count`, :func:`mesh_cand_count`): at every neighbour rebuild the
 triangles are binned into the particles' cell grid (a triangle goes into each cell whose
-centre lies within (R_max + skin + half the cell diagonal) of it), and each particle keeps the
+centre lies within (R_max + skin + half the cell diagonal) of it; only the cells of the slab
+around its plane are examined), and each particle keeps the
 triangles of its own cell that lie within r + skin of its centre (a candidate list, CSR).  The
 list is rebuilt when a particle or a mesh vertex has moved more than skin/2 since the build.
 Limits: meshes do not see periodic images; a particle has at most ``K`` mesh contacts at once
@@ -868,23 +869,50 @@ def _cell_range(lo_a, size_a, nc_a, a0, a1):
 
 @kernel(inline="always")
 def _tri_cells(T, t, lo, size, nc, cut, start, cells, tris, fill):
-    """Count (fill=False) or write the cells of triangle t (module docstring)."""
-    bx0 = T[t, 0] + min(0.0, min(T[t, 3], T[t, 6]))
-    by0 = T[t, 1] + min(0.0, min(T[t, 4], T[t, 7]))
-    bz0 = T[t, 2] + min(0.0, min(T[t, 5], T[t, 8]))
-    bx1 = T[t, 0] + max(0.0, max(T[t, 3], T[t, 6]))
-    by1 = T[t, 1] + max(0.0, max(T[t, 4], T[t, 7]))
-    bz1 = T[t, 2] + max(0.0, max(T[t, 5], T[t, 8]))
-    ix0, ix1 = _cell_range(lo[0], size[0], nc[0], bx0 - cut, bx1 + cut)
-    iy0, iy1 = _cell_range(lo[1], size[1], nc[1], by0 - cut, by1 + cut)
-    iz0, iz1 = _cell_range(lo[2], size[2], nc[2], bz0 - cut, bz1 + cut)
+    """Count (fill=False) or write the cells of triangle t: those whose centre lies within
+    lim = cut + half the cell diagonal of the triangle.  The cells are scanned over the
+    triangle's bounding box (grown by cut) along the two axes other than the normal's largest
+    component d, and along d only over the slab |n.(c - P0)| <= lim (at most about 3.5 lim
+    long): a large tilted triangle costs its area in cells, not its bounding box's volume."""
     hd = 0.5 * math.sqrt(size[0] * size[0] + size[1] * size[1] + size[2] * size[2])
     lim = cut + hd
     lim2 = lim * lim
+    d = 0
+    if abs(T[t, 10]) > abs(T[t, 9 + d]):
+        d = 1
+    if abs(T[t, 11]) > abs(T[t, 9 + d]):
+        d = 2
+    a = (d + 1) % 3
+    b = (d + 2) % 3
+    ia0, ia1 = _cell_range(lo[a], size[a], nc[a], T[t, a] + min(0.0, min(T[t, 3 + a], T[t, 6 + a])) - cut,
+                           T[t, a] + max(0.0, max(T[t, 3 + a], T[t, 6 + a])) + cut)
+    ib0, ib1 = _cell_range(lo[b], size[b], nc[b], T[t, b] + min(0.0, min(T[t, 3 + b], T[t, 6 + b])) - cut,
+                           T[t, b] + max(0.0, max(T[t, 3 + b], T[t, 6 + b])) + cut)
+    dlo = T[t, d] + min(0.0, min(T[t, 3 + d], T[t, 6 + d])) - cut
+    dhi = T[t, d] + max(0.0, max(T[t, 3 + d], T[t, 6 + d])) + cut
+    na = T[t, 9 + a]
+    nb_ = T[t, 9 + b]
+    nd = T[t, 9 + d]
     cnt = 0
-    for cx in range(ix0, ix1 + 1):
-        for cy in range(iy0, iy1 + 1):
-            for cz in range(iz0, iz1 + 1):
+    for ia in range(ia0, ia1 + 1):
+        ca = lo[a] + (ia + 0.5) * size[a]
+        for ib in range(ib0, ib1 + 1):
+            cb = lo[b] + (ib + 0.5) * size[b]
+            base = na * (ca - T[t, a]) + nb_ * (cb - T[t, b])
+            z1 = T[t, d] + (-lim - base) / nd
+            z2 = T[t, d] + (lim - base) / nd
+            zlo = max(min(z1, z2), dlo)
+            zhi = min(max(z1, z2), dhi)
+            if zlo > zhi:
+                continue
+            id0, id1 = _cell_range(lo[d], size[d], nc[d], zlo - 0.5 * size[d], zhi + 0.5 * size[d])
+            for idd in range(id0, id1 + 1):
+                if d == 0:
+                    cx, cy, cz = idd, ia, ib
+                elif d == 1:
+                    cx, cy, cz = ib, idd, ia
+                else:
+                    cx, cy, cz = ia, ib, idd
                 feat, k, qx, qy, qz, d2, h = tri_closest(T, t, lo[0] + (cx + 0.5) * size[0],
                                                          lo[1] + (cy + 0.5) * size[1],
                                                          lo[2] + (cz + 0.5) * size[2])

@@ -11,8 +11,8 @@ import pytest
 from cfddem.errors import CaseError
 from cfddem.particles import (HertzMindlinContact, LinearContact, MeshWall, ParticleSystem, PlaneWall,
                               RectangleWall)
-from cfddem.particles.mesh import (EDGE, FACE, VERTEX, box_surface, grid_surface, mesh_closest_py,
-                                   triangle_rows)
+from cfddem.particles.mesh import (EDGE, FACE, VERTEX, box_surface, cylinder_surface, grid_surface,
+                                   mesh_closest_py, triangle_rows)
 
 R, RHO = 1.5e-3, 2550.0
 M = RHO * 4.0 / 3.0 * math.pi * R**3
@@ -316,3 +316,26 @@ def test_paraview_meshes_per_frame_when_moving(tmp_path):
         assert len(k) == 8 * len(walls) and set(k.tolist()) == set(range(len(walls)))
         np.testing.assert_allclose(back.points[back.cells[0].data[k == len(walls) - 1]],
                                    s.mesh_vertices(len(walls) - 1)[walls[-1].triangles], atol=1e-15)
+
+
+def test_binned_candidates_equal_brute_force():
+    """The cell-binned candidate lists hold exactly the triangles within r + skin of each
+    particle (checked against all triangles), for a tilted drum with long thin facets."""
+    V, F = cylinder_surface((0.01, 0.02, -0.01), (1.0, 2.0, 0.5), 0.03, 0.08, 24, 3)
+    m = MeshWall(V, F, C)
+    rng = np.random.default_rng(5)
+    pos = rng.uniform(-0.04, 0.06, (400, 3))
+    keep = [0]
+    for i in range(1, len(pos)):
+        if np.min(np.linalg.norm(pos[keep] - pos[i], axis=1)) > 2.2 * R:
+            keep.append(i)
+    s = ParticleSystem(pp=C, walls=[m], dt=1e-7)
+    s.add_particles(pos[keep], 0.0, R, RHO)
+    s.step(1)
+    T = triangle_rows(m.vertices, m.triangles)
+    skin = s._skin_built
+    for i in range(s.n):
+        got = s._mlist[s._mstart[i]:s._mstart[i + 1]].tolist()
+        want = [t for t in range(len(T)) if mesh_closest_py(T, t, s._ref[i])[5] < (R + skin) ** 2]
+        assert got == want
+    assert s.mesh_stats()["candidates"] > 0
