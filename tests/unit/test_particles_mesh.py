@@ -3,6 +3,7 @@ agreement with the analytic walls, reading STL/OBJ, defect reports, bad input, m
 forces on the mesh, restart and the cell-binned search."""
 
 import math
+import xml.etree.ElementTree as ET
 
 import meshio
 import numpy as np
@@ -302,15 +303,16 @@ def test_paraview_meshes_per_frame_when_moving(tmp_path):
     V, F = grid(2, 0.01)
     still = MeshWall(V + [0, -0.05, 0], F, C, name="floor")
     blade = MeshWall(V, F, C, angular_velocity=(0, 3.0, 0), center=(0, 0, 0), name="blade")
-    for walls, files in (([still], {"meshes.vtu"}), ([still, blade], {"meshes/meshes_000000.vtu", "meshes/meshes_000001.vtu"})):
+    moving = {"meshes/meshes_000000.vtu", "meshes/meshes_000001.vtu"}
+    for walls, files in (([still], {"meshes.vtu"}), ([still, blade], moving)):
         out = ParaViewOutput(tmp_path / str(len(walls)))
         s = ParticleSystem(pp=C, walls=walls, dt=1e-4)
         for _ in range(2):
             s.step(10)
             out.write(s.time, np.zeros((0, 3)), np.zeros(0), meshes=s.mesh_surfaces())
         d = tmp_path / str(len(walls)) / "vtk"
-        entries = {ds.split('file="')[1].split('"')[0] for ds in (d / "meshes.pvd").read_text().splitlines() if "file=" in ds}
-        assert entries == files
+        entries = [ds.get("file") for ds in ET.parse(d / "meshes.pvd").getroot().iter("DataSet")]
+        assert len(entries) == 2 and set(entries) == files
         back = meshio.read(d / sorted(files)[-1])
         k = back.cell_data["mesh"][0]
         assert len(k) == 8 * len(walls) and set(k.tolist()) == set(range(len(walls)))
