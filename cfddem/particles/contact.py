@@ -387,6 +387,36 @@ def pair_law(model, kn, cn, kt, ct, mu, meff, reff, dn, nx, ny, nz, vx, vy, vz, 
     return linear_law(kn, cn, kt, ct, mu, meff, dn, nx, ny, nz, vx, vy, vz, hx, hy, hz, dt_hist)
 
 
+@kernel
+def wall_contact_force(model, kn, cn, kt, ct, mu, m, r, ov, nx, ny, nz, qx, qy, qz, vx, vy, vz, wx, wy, wz,
+                       wvx, wvy, wvz, hx, hy, hz, refx, refy, refz, dt_hist):
+    """One contact of a sphere (mass m, radius r, velocity v, spin w) with a wall (analytic or
+    mesh): overlap ``ov``, unit normal n from the wall towards the centre, contact point q, wall
+    surface velocity wv at q, tangential spring h, reference point ref of the torque on the wall.
+    The wall is the partner b of infinite mass (m* = m, R* = r) in :func:`pair_law`.
+
+    Returns (F on the sphere (3), torque on the sphere about its centre (3), new spring (3),
+    |F_n|, torque on the wall about ref (3)).  The force on the wall is -F.
+    """
+    # n_ab from the particle (a) towards the wall (b)
+    ax_ = -nx
+    ay_ = -ny
+    az_ = -nz
+    sx = r * wx
+    sy = r * wy
+    sz = r * wz
+    rvx = vx - wvx + sy * az_ - sz * ay_
+    rvy = vy - wvy + sz * ax_ - sx * az_
+    rvz = vz - wvz + sx * ay_ - sy * ax_
+    cfx, cfy, cfz, ctx, cty, ctz, hx, hy, hz, fnabs = pair_law(
+        model, kn, cn, kt, ct, mu, m, r, ov, ax_, ay_, az_, rvx, rvy, rvz, hx, hy, hz, dt_hist)
+    lx = qx - refx
+    ly = qy - refy
+    lz = qz - refz
+    return (cfx, cfy, cfz, r * (ay_ * ctz - az_ * cty), r * (az_ * ctx - ax_ * ctz), r * (ax_ * cty - ay_ * ctx),
+            hx, hy, hz, fnabs, -(ly * cfz - lz * cfy), -(lz * cfx - lx * cfz), -(lx * cfy - ly * cfx))
+
+
 @kernel(inline="always")
 def rolling_torque_limited(mu_r, rr, fnabs, wx, wy, wz, inv_i_sum, dt):
     """Rolling-friction torque on a for one contact, limited so that it never reverses w_rel.

@@ -33,7 +33,7 @@ import numpy as np
 from cfddem._jit import kernel, parallel_kernel, prange
 from cfddem.particles._twin import serial_twin
 from cfddem.particles.contact import (P_CN, P_CT, P_KN, P_KT, P_MODEL, P_MU, P_MUR, pair_law,
-                                      rolling_torque_limited)
+                                      rolling_torque_limited, wall_contact_force)
 from cfddem.particles.neighbours import _min_image, _wrap
 from cfddem.particles.walls import wall_contact, wall_contact_s
 
@@ -228,16 +228,19 @@ def pair_forces(npairs, pi, pj, pos, vel, omg, radius, mass, inertia, params, pe
 def _rolling_step(tmax, inert, dt, pwx, pwy, pwz):
     """Rolling torque of one wall contact with limit ``tmax`` = mu_r R |F_n| on a particle whose
     spin predicted without it is pw: -I pw/dt if that is within the limit (the spin stops), else
-    -tmax pw/|pw|; zero if pw = 0."""
+    -tmax pw/|pw|; zero if pw = 0.  Returns (torque (3), the predicted spin with it (3))."""
     pw = math.sqrt(pwx * pwx + pwy * pwy + pwz * pwz)
     if pw == 0.0:
-        return 0.0, 0.0, 0.0
+        return 0.0, 0.0, 0.0, pwx, pwy, pwz
     tstop = inert * pw / dt
     if tstop <= tmax:
         s = -inert / dt
     else:
         s = -tmax / pw
-    return s * pwx, s * pwy, s * pwz
+    rx = s * pwx
+    ry = s * pwy
+    rz = s * pwz
+    return rx, ry, rz, pwx + dt * rx / inert, pwy + dt * ry / inert, pwz + dt * rz / inert
 
 
 @parallel_kernel
@@ -353,13 +356,6 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
                 wgeom[w, 6], wgeom[w, 7], wgeom[w, 8], wgeom[w, 9], wgeom[w, 10], wgeom[w, 11],
                 wgeom[w, 12], wgeom[w, 13], wgeom[w, 14], x, y, z, r)
             if ov > 0.0:
-                # n_ab from the particle (a) towards the wall (b)
-                ax_ = -nx
-                ay_ = -ny
-                az_ = -nz
-                sx = r * wx
-                sy = r * wy
-                sz = r * wz
                 # surface velocity: v + spin n x (q - p) (spin about the wall's own axis)
                 wvx = wgeom[w, 16]
                 wvy = wgeom[w, 17]
@@ -372,33 +368,27 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
                     wvx += spin * (wgeom[w, 5] * lz - wgeom[w, 6] * ly)
                     wvy += spin * (wgeom[w, 6] * lx - wgeom[w, 4] * lz)
                     wvz += spin * (wgeom[w, 4] * ly - wgeom[w, 5] * lx)
-                rvx = vx - wvx + sy * az_ - sz * ay_
-                rvy = vy - wvy + sz * ax_ - sx * az_
-                rvz = vz - wvz + sx * ay_ - sy * ax_
-                cfx, cfy, cfz, ctx, cty, ctz, hx, hy, hz, fnabs = pair_law(
+                cfx, cfy, cfz, ptx, pty, ptz, hx, hy, hz, fnabs, twx, twy, twz = wall_contact_force(
                     wpar[w, P_MODEL], wpar[w, P_KN], wpar[w, P_CN], wpar[w, P_KT], wpar[w, P_CT],
-                    wpar[w, P_MU], m, r, ov, ax_, ay_, az_, rvx, rvy, rvz,
-                    whist[i, w, 0], whist[i, w, 1], whist[i, w, 2], dt_hist)
+                    wpar[w, P_MU], m, r, ov, nx, ny, nz, qx, qy, qz, vx, vy, vz, wx, wy, wz, wvx, wvy, wvz,
+                    whist[i, w, 0], whist[i, w, 1], whist[i, w, 2], wref[w, 0], wref[w, 1], wref[w, 2], dt_hist)
                 whist[i, w, 0] = hx
                 whist[i, w, 1] = hy
                 whist[i, w, 2] = hz
                 fx += cfx
                 fy += cfy
                 fz += cfz
-                tx += r * (ay_ * ctz - az_ * cty)
-                ty += r * (az_ * ctx - ax_ * ctz)
-                tz += r * (ax_ * cty - ay_ * ctx)
+                tx += ptx
+                ty += pty
+                tz += ptz
                 won[i, w] = 1
                 wfn[i, w] = fnabs
                 wfw[i, w, 0] = -cfx
                 wfw[i, w, 1] = -cfy
                 wfw[i, w, 2] = -cfz
-                lx = qx - wref[w, 0]
-                ly = qy - wref[w, 1]
-                lz = qz - wref[w, 2]
-                wtw[i, w, 0] = -(ly * cfz - lz * cfy)
-                wtw[i, w, 1] = -(lz * cfx - lx * cfz)
-                wtw[i, w, 2] = -(lx * cfy - ly * cfx)
+                wtw[i, w, 0] = twx
+                wtw[i, w, 1] = twy
+                wtw[i, w, 2] = twz
                 ovmax = max(ovmax, ov / r)
                 if wpar[w, P_MUR] > 0.0:
                     anyroll = True
@@ -427,13 +417,10 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
                 mur = wpar[w, P_MUR]
                 if won[i, w] == 0 or mur == 0.0:
                     continue
-                rx, ry, rz = _rolling_step(mur * r * wfn[i, w], inert, dt, pwx, pwy, pwz)
+                rx, ry, rz, pwx, pwy, pwz = _rolling_step(mur * r * wfn[i, w], inert, dt, pwx, pwy, pwz)
                 tx += rx
                 ty += ry
                 tz += rz
-                pwx += dt * rx / inert
-                pwy += dt * ry / inert
-                pwz += dt * rz / inert
                 wtw[i, w, 0] -= rx
                 wtw[i, w, 1] -= ry
                 wtw[i, w, 2] -= rz
@@ -445,13 +432,10 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
                     mur = mpar[mm, P_MUR]
                     if mur == 0.0:
                         continue
-                    rx, ry, rz = _rolling_step(mur * r * ms_fn[i, s], inert, dt, pwx, pwy, pwz)
+                    rx, ry, rz, pwx, pwy, pwz = _rolling_step(mur * r * ms_fn[i, s], inert, dt, pwx, pwy, pwz)
                     tx += rx
                     ty += ry
                     tz += rz
-                    pwx += dt * rx / inert
-                    pwy += dt * ry / inert
-                    pwz += dt * rz / inert
                     ms_tw[i, s, 0] -= rx
                     ms_tw[i, s, 1] -= ry
                     ms_tw[i, s, 2] -= rz

@@ -68,7 +68,7 @@ import numpy as np
 from cfddem._jit import kernel, parallel_kernel, prange
 from cfddem.particles._twin import serial_twin
 from cfddem.errors import CaseError
-from cfddem.particles.contact import P_CN, P_CT, P_KN, P_KT, P_MODEL, P_MU, pair_law
+from cfddem.particles.contact import P_CN, P_CT, P_KN, P_KT, P_MODEL, P_MU, wall_contact_force
 
 #: columns of the triangle table: P0 (0:3), e1 = P1 - P0 (3:6), e2 = P2 - P0 (6:9), unit normal
 #: (9:12), e1.e1, e1.e2, e2.e2, 1/(e1.e1 e2.e2 - (e1.e2)^2), |e2 - e1|^2
@@ -783,9 +783,9 @@ def mesh_forces(n, pos, vel, omg, radius, mass, cstart, clist, T, tmesh, tedge, 
         vx = vel[i, 0]
         vy = vel[i, 1]
         vz = vel[i, 2]
-        sx = r * omg[i, 0]
-        sy = r * omg[i, 1]
-        sz = r * omg[i, 2]
+        wx = omg[i, 0]
+        wy = omg[i, 1]
+        wz = omg[i, 2]
         m_i = mass[i]
         ovi = 0.0
         for p in range(nnew):
@@ -798,10 +798,6 @@ def mesh_forces(n, pos, vel, omg, radius, mass, cstart, clist, T, tmesh, tedge, 
             qx = mc[i, p, 4]
             qy = mc[i, p, 5]
             qz = mc[i, p, 6]
-            # n_ab from the particle (a) towards the wall (b)
-            ax_ = -nx
-            ay_ = -ny
-            az_ = -nz
             # surface velocity v + w x (q - c)
             lx = qx - mcen[m, 0]
             ly = qy - mcen[m, 1]
@@ -809,13 +805,10 @@ def mesh_forces(n, pos, vel, omg, radius, mass, cstart, clist, T, tmesh, tedge, 
             wvx = mvel[m, 0] + (momg[m, 1] * lz - momg[m, 2] * ly)
             wvy = mvel[m, 1] + (momg[m, 2] * lx - momg[m, 0] * lz)
             wvz = mvel[m, 2] + (momg[m, 0] * ly - momg[m, 1] * lx)
-            rvx = vx - wvx + sy * az_ - sz * ay_
-            rvy = vy - wvy + sz * ax_ - sx * az_
-            rvz = vz - wvz + sx * ay_ - sy * ax_
-            cfx, cfy, cfz, ctx, cty, ctz, hx, hy, hz, fnabs = pair_law(
+            cfx, cfy, cfz, ptx, pty, ptz, hx, hy, hz, fnabs, twx, twy, twz = wall_contact_force(
                 mpar[m, P_MODEL], mpar[m, P_KN], mpar[m, P_CN], mpar[m, P_KT], mpar[m, P_CT],
-                mpar[m, P_MU], m_i, r, ov, ax_, ay_, az_, rvx, rvy, rvz,
-                ms_h[i, s, 0], ms_h[i, s, 1], ms_h[i, s, 2], dt_hist)
+                mpar[m, P_MU], m_i, r, ov, nx, ny, nz, qx, qy, qz, vx, vy, vz, wx, wy, wz, wvx, wvy, wvz,
+                ms_h[i, s, 0], ms_h[i, s, 1], ms_h[i, s, 2], mref[m, 0], mref[m, 1], mref[m, 2], dt_hist)
             ms_mesh[i, s] = m
             ms_h[i, s, 0] = hx
             ms_h[i, s, 1] = hy
@@ -828,21 +821,18 @@ def mesh_forces(n, pos, vel, omg, radius, mass, cstart, clist, T, tmesh, tedge, 
             ms_q[i, s, 2] = qz
             ms_ov[i, s] = ov
             ms_fn[i, s] = fnabs
-            fx += cfx
-            fy += cfy
-            fz += cfz
-            tx += r * (ay_ * ctz - az_ * cty)
-            ty += r * (az_ * ctx - ax_ * ctz)
-            tz += r * (ax_ * cty - ay_ * ctx)
             ms_fw[i, s, 0] = -cfx
             ms_fw[i, s, 1] = -cfy
             ms_fw[i, s, 2] = -cfz
-            lx = qx - mref[m, 0]
-            ly = qy - mref[m, 1]
-            lz = qz - mref[m, 2]
-            ms_tw[i, s, 0] = -(ly * cfz - lz * cfy)
-            ms_tw[i, s, 1] = -(lz * cfx - lx * cfz)
-            ms_tw[i, s, 2] = -(lx * cfy - ly * cfx)
+            ms_tw[i, s, 0] = twx
+            ms_tw[i, s, 1] = twy
+            ms_tw[i, s, 2] = twz
+            fx += cfx
+            fy += cfy
+            fz += cfz
+            tx += ptx
+            ty += pty
+            tz += ptz
             ovi = max(ovi, ov / r)
         mf[i, 0] = fx
         mf[i, 1] = fy

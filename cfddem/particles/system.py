@@ -622,17 +622,20 @@ class ParticleSystem:
         return int(mask.sum())
 
     # ------------------------------------------------------------------ mesh walls
-    def _mesh_index(self, wall) -> int:
-        """Index of mesh wall ``wall`` (name or index into ``meshes``)."""
+    def _lookup(self, items, wall, what: str) -> int:
+        """Index of ``wall`` (a name or an index) in ``items`` (``walls`` or ``meshes``)."""
         if isinstance(wall, str):
-            for k, w in enumerate(self.meshes):
+            for k, w in enumerate(items):
                 if w.name == wall:
                     return k
-            raise KeyError(f"no mesh wall named {wall!r} (meshes: {[w.name for w in self.meshes]})")
+            raise KeyError(f"no {what} named {wall!r} (walls: {[w.name for w in self.walls + self.meshes]})")
         k = int(wall)
-        if not 0 <= k < self.nm:
-            raise IndexError(f"mesh index {k} out of range (0..{self.nm - 1})")
+        if not 0 <= k < len(items):
+            raise IndexError(f"{what} index {k} out of range (0..{len(items) - 1})")
         return k
+
+    def _mesh_index(self, wall) -> int:
+        return self._lookup(self.meshes, wall, "mesh wall")
 
     def _is_mesh(self, wall) -> bool:
         return isinstance(wall, str) and any(w.name == wall for w in self.meshes)
@@ -706,15 +709,7 @@ class ParticleSystem:
 
     # ------------------------------------------------------------------ wall control
     def _wall_index(self, wall) -> int:
-        if isinstance(wall, str):
-            for k, w in enumerate(self.walls):
-                if w.name == wall:
-                    return k
-            raise KeyError(f"no wall named {wall!r} (walls: {[w.name for w in self.walls + self.meshes]})")
-        k = int(wall)
-        if not 0 <= k < self.nw:
-            raise IndexError(f"wall index {k} out of range (0..{self.nw - 1})")
-        return k
+        return self._lookup(self.walls, wall, "wall")
 
     def set_wall_active(self, wall, active: bool) -> None:
         """Switch wall ``wall`` (index or name) on or off.  Switching off drops its contacts and
