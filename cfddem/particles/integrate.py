@@ -247,7 +247,7 @@ def _rolling_step(tmax, inert, dt, pwx, pwy, pwz):
 def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ext_f, ext_t, has_ext,
                       pf, pr, has_roll, first_start, second_start, second_list,
                       wgeom, wref, wpar, nw, whist, won, wfw, wtw, wfn,
-                      has_mesh, K, ms_mesh, ms_fn, ms_tw, mpar, mf, mt,
+                      has_mesh, mstart, K, ms_mesh, ms_fn, ms_tw, mpar, mf, mt,
                       gx, gy, gz, omx, omy, omz, cax, cay, caz,
                       dt, dt_hist, kick, rotating, Rv, Rw, drift_next, periodic_len, plo, ref, held):
     """Sum pair forces per particle (fixed order), add walls, gravity, centrifugal force, store
@@ -259,7 +259,8 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
     resistance) else -mu_r R |F_n| w'/|w'|.  It never reverses the spin within the step.
 
     Mesh walls (``has_mesh``): their contact forces and torques were summed per particle into
-    mf, mt by :func:`cfddem.particles.mesh.mesh_forces`; they are added after the analytic walls,
+    mf, mt by :func:`cfddem.particles.mesh.mesh_forces` for the particles with candidate
+    triangles (``mstart[i] < mstart[i + 1]``); they are added after the analytic walls,
     and their rolling friction (slots ``ms_mesh``, |F_n| ``ms_fn``, parameters ``mpar``) follows
     the analytic walls' in the same way.
 
@@ -399,7 +400,7 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
                     whist[i, w, c] = 0.0
                     wfw[i, w, c] = 0.0
                     wtw[i, w, c] = 0.0
-        if has_mesh:
+        if has_mesh and mstart[i] < mstart[i + 1]:
             fx += mf[i, 0]
             fy += mf[i, 1]
             fz += mf[i, 2]
@@ -424,7 +425,7 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
                 wtw[i, w, 0] -= rx
                 wtw[i, w, 1] -= ry
                 wtw[i, w, 2] -= rz
-            if has_mesh:
+            if has_mesh and mstart[i] < mstart[i + 1]:
                 for s in range(K):
                     mm = ms_mesh[i, s]
                     if mm < 0:

@@ -743,27 +743,29 @@ def _match_slots(i, r, nnew, K, mc, ms_mesh, ms_n, ms_q, ms_h):
 
 
 @parallel_kernel
-def mesh_forces(n, pos, vel, omg, radius, mass, cstart, clist, T, tmesh, tedge, tvert, estart, etri,
+def mesh_forces(nlist, plist, pos, vel, omg, radius, mass, cstart, clist, T, tmesh, tedge, tvert, estart, etri,
                 vstart, vtri, mpar, mvel, momg, mcen, mref, mact, K, mc, ms_mesh, ms_n, ms_q, ms_h,
                 ms_ov, ms_fn, ms_fw, ms_tw, mf, mt, mstat, dt_hist):
     """Contacts of every particle with the mesh walls (module docstring) and their forces.
 
-    Per particle: mf[i], mt[i] = the summed contact force and torque (about the centre) from the
-    meshes; per slot s: the mesh, normal, point, overlap, tangential spring, |F_n|, and the force
+    Only the particles ``plist[:nlist]`` are visited: those with candidate triangles (the others
+    have no mesh contact and empty slots).  Per particle: mf[i], mt[i] = the summed contact force
+    and torque (about the centre) from the meshes; per slot s: the mesh, normal, point, overlap, tangential spring, |F_n|, and the force
     and torque (about the mesh's reference point) on the mesh.  Rolling friction is added by the
     gather (:func:`cfddem.particles.integrate.gather_walls_kick`), as for the analytic walls.
-    Returns (particles with more than K contacts, max overlap ratio); mstat (n, 2) is scratch
+    Returns (particles with more than K contacts, max overlap ratio); mstat (nlist, 2) is scratch
     for these two per particle (reduced after the parallel loop: numba's reduction analysis
     fails on the inlined contact search).
     """
-    for i in prange(n):
+    for j in prange(nlist):
+        i = plist[j]
         x = pos[i, 0]
         y = pos[i, 1]
         z = pos[i, 2]
         r = radius[i]
         nnew, o = mesh_contact_list(i, x, y, z, r, cstart, clist, T, tmesh, mact, tedge, tvert, estart,
                                     etri, vstart, vtri, K, mc)
-        mstat[i, 0] = 1.0 if o > 0 else 0.0
+        mstat[j, 0] = 1.0 if o > 0 else 0.0
         taken = _match_slots(i, r, nnew, K, mc, ms_mesh, ms_n, ms_q, ms_h)
         for s in range(K):
             if ((taken >> s) & 1) == 0 and ms_mesh[i, s] >= 0:  # a contact that ended
@@ -840,13 +842,13 @@ def mesh_forces(n, pos, vel, omg, radius, mass, cstart, clist, T, tmesh, tedge, 
         mt[i, 0] = tx
         mt[i, 1] = ty
         mt[i, 2] = tz
-        mstat[i, 1] = ovi
+        mstat[j, 1] = ovi
     over = 0
     ovmax = 0.0
-    for i in range(n):
-        if mstat[i, 0] != 0.0:
+    for j in range(nlist):
+        if mstat[j, 0] != 0.0:
             over += 1
-        ovmax = max(ovmax, mstat[i, 1])
+        ovmax = max(ovmax, mstat[j, 1])
     return over, ovmax
 
 

@@ -86,6 +86,7 @@ class ParticleSystem:
         self._mesh_cells = 0
         self._mstart = np.zeros(1, np.int64)
         self._mlist = np.zeros(1, np.int64)
+        self._mplist = np.zeros(0, np.int64)  # particles with candidate triangles
         self.dt = float(dt)
         self.gravity = np.asarray(gravity, float).reshape(3)
         self.frame_omega = np.asarray(omega, float).reshape(3)
@@ -168,7 +169,6 @@ class ParticleSystem:
         self._mc = np.zeros((cap, K, 9))
         self._mf = np.zeros((cap, 3))
         self._mtq = np.zeros((cap, 3))
-        self._mstat = np.zeros((cap, 2))
         self._cap = cap
 
     def _alloc_pairs(self, pcap, cap):
@@ -382,6 +382,15 @@ class ParticleSystem:
         (mw.mesh_cand_fill_s if ser else mw.mesh_cand_fill)(n, self._pos, self._radius, skin, lo, size, nc,
                                                             ctstart, ctri, t.T, mstart, mlist)
         self._mstart, self._mlist = mstart, mlist
+        # only particles with candidate triangles can touch a mesh: the force kernel visits them
+        # alone (a particle without candidates had no contact at the last evaluation either;
+        # its slots are cleared here all the same)
+        self._mplist = np.flatnonzero(cnt).astype(np.int64)
+        self._mstat = np.zeros((max(len(self._mplist), 1), 2))
+        none = cnt == 0
+        if np.any(self._ms_mesh[:n][none] >= 0):
+            for k in _MESH_ARRAYS:
+                getattr(self, "_" + k)[:n][none] = -1 if k == "ms_mesh" else 0.0
         self._mesh_cells = ne
         t.disp = 0.0
 
@@ -402,8 +411,9 @@ class ParticleSystem:
         ov_m = 0.0
         if self.nm:
             t = self._mt
-            over, ov_m = (mw.mesh_forces_s if ser else mw.mesh_forces)(
-                self.n, self._pos, self._vel, self._omega, self._radius, self._mass, self._mstart,
+            nl = len(self._mplist)
+            over, ov_m = (mw.mesh_forces_s if self._serial(nl) else mw.mesh_forces)(
+                nl, self._mplist, self._pos, self._vel, self._omega, self._radius, self._mass, self._mstart,
                 self._mlist, t.T, t.tmesh, t.tedge, t.tvert, t.estart, t.etri, t.vstart, t.vtri,
                 t.par, t.vel, t.omg, t.cen, t.ref, t.act, self._K, self._mc, self._ms_mesh, self._ms_n,
                 self._ms_q, self._ms_h, self._ms_ov, self._ms_fn, self._ms_fw, self._ms_tw, self._mf,
@@ -419,7 +429,7 @@ class ParticleSystem:
             self._mass, self._inertia, self._ext_force, self._ext_torque, self._has_ext, cur["pf"], cur["pr"],
             self._has_roll, cur["first_start"], cur["second_start"], cur["second_list"],
             self._wgeom, self._wref, self._wpar, self.nw, self._whist, self._won, self._wfw,
-            self._wtw, self._wfn, self.nm > 0, self._K, self._ms_mesh, self._ms_fn, self._ms_tw,
+            self._wtw, self._wfn, self.nm > 0, self._mstart, self._K, self._ms_mesh, self._ms_fn, self._ms_tw,
             self._mt.par, self._mf, self._mtq, g[0], g[1], g[2], om[0], om[1], om[2], ap[0], ap[1], ap[2],
             self.dt, dt_hist, kick, self._rotating, self._Rv, self._Rw, drift_next, self._plen,
             self._plo, self._ref, self._held)
@@ -931,6 +941,8 @@ class ParticleSystem:
             self._mstart[: nb_ + 1] = state["l_mstart"]
             self._mlist = np.zeros(max(len(state["l_mlist"]), 1), np.int64)
             self._mlist[: len(state["l_mlist"])] = state["l_mlist"]
+            self._mplist = np.flatnonzero(np.diff(self._mstart[: nb_ + 1])).astype(np.int64)
+            self._mstat = np.zeros((max(len(self._mplist), 1), 2))
         elif self.nm:
             self._need_rebuild = True
         self.time = float(state["time"])
