@@ -26,9 +26,9 @@ to f (sharing the edge, or the vertex's fan)
 * if u's closest point is the same feature f and u is in front (h_u >= 0), u has a larger index
   (the lowest-index triangle owns a shared edge or vertex contact).
 
-Face contacts are always kept; two face contacts at the same point (the projection on the seam
-of two coplanar triangles, within round-off) are merged: a new contact whose point lies within
-1e-9 r of an accepted contact of the same mesh is dropped.  Consequences (tested): a flat seam or
+Face contacts are always kept; two contacts at the same point (e.g. the projection on the seam
+of two coplanar triangles, which both see x over their closed faces) are merged: a new contact
+whose point lies within 1e-9 r of an accepted contact of the same mesh is dropped.  Consequences (tested): a flat seam or
 a vertex shared by six coplanar triangles gives one contact, equal to the analytic plane's; a
 sphere rolling across a seam of two coplanar triangles keeps the face contact of the triangle
 under it (the neighbour's edge contact is dropped because the triangle under the sphere sees x
@@ -44,16 +44,17 @@ last contact point is within r of its point, best pairs first; the other new con
 slots with zero history; slots not taken are released.
 
 Moving meshes: a mesh translates at ``velocity`` and rotates at ``angular_velocity`` about an
-axis through ``center`` (which moves with the translation).  The vertex positions at time t
-(since the system's start) are c0 + v t + R(t) (X0 - c0); the contact uses the surface velocity
+axis through ``center`` (which moves with the translation).  The vertex positions are
+c(t) + Rot(t) (X0 - c0), with c(t) = c0 + the accumulated translation and Rot(t) the
+accumulated rotation (both stepped with the particles); the contact uses the surface velocity
 v + w x (q - c(t)).  ``schedule`` switches a mesh on and off at set times (a gate).
 
 Search (:func:`tri_cell_count`, :func:`mesh_cand_count`): at every neighbour rebuild the
 triangles are binned into the particles' cell grid (a triangle goes into each cell whose
 centre lies within (R_max + skin + half the cell diagonal) of it; only the cells of the slab
-around its plane are examined), and each particle keeps the
-triangles of its own cell that lie within r + skin of its centre (a candidate list, CSR).  The
-list is rebuilt when a particle or a mesh vertex has moved more than skin/2 since the build.
+around its plane are examined), and each particle keeps the triangles of its own cell that
+lie within r + skin of its centre (a candidate list, CSR).  The list is rebuilt when a particle or a mesh vertex has moved more than skin/2 since the build.
+The force kernel visits only the particles that have candidates.
 Limits: meshes do not see periodic images; a particle has at most ``K`` mesh contacts at once
 (the step stops with a clear message otherwise).
 """
