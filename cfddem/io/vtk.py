@@ -6,6 +6,8 @@
   factor 2 because ParaView's sphere glyph has radius 0.5) to see the spheres.
 * gas: an unstructured hexahedral mesh of the grid cells with cell-centred fields.
 * walls: ``quad`` cells.
+* mesh walls (triangle meshes, :class:`cfddem.particles.MeshWall`): ``triangle`` cells with the
+  cell data ``mesh`` (the mesh's index); written once when no mesh moves, else every frame.
 
 Every VTU is written to a temporary file and renamed, and :class:`PvdIndex` rewrites its
 collection atomically after every frame, so a crashed run leaves valid files and a valid
@@ -120,6 +122,15 @@ def write_walls_vtu(path, quads) -> Path:
     return _write_vtu_atomic(path, meshio.Mesh(points, cells))
 
 
+def write_meshes_vtu(path, vertices, triangles, mesh=None) -> Path:
+    """Write triangle meshes: ``vertices`` (nv, 3), ``triangles`` (nt, 3) indices, ``mesh``
+    (nt,) the index of the mesh each triangle belongs to (cell data ``mesh``)."""
+    V = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+    F = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+    data = {} if mesh is None else {"mesh": [np.asarray(mesh, dtype=np.int64).reshape(len(F))]}
+    return _write_vtu_atomic(path, meshio.Mesh(V, [("triangle", F)], cell_data=data))
+
+
 class PvdIndex:
     """A ParaView ``.pvd`` collection, rewritten atomically after every frame.
 
@@ -160,11 +171,14 @@ class PvdIndex:
 
 
 class ParaViewOutput:
-    """The three ParaView series of a run in ``out_dir/vtk``: ``particles.pvd``,
-    ``gas.pvd`` and ``walls.pvd``, all indexed with the same times so they animate together.
+    """The ParaView series of a run in ``out_dir/vtk``: ``particles.pvd``, ``gas.pvd``,
+    ``walls.pvd`` and (with mesh walls) ``meshes.pvd``, all indexed with the same times so they
+    animate together.
 
     Frames are ``vtk/particles/particles_<NNNNNN>.vtu`` and ``vtk/gas/gas_<NNNNNN>.vtu``;
-    the walls are static, written once to ``vtk/walls.vtu`` and listed at every time.
+    the walls are static, written once to ``vtk/walls.vtu`` and listed at every time.  Mesh
+    walls (``write(..., meshes=dict(vertices=, triangles=, mesh=, moving=))``) go to
+    ``vtk/meshes.vtu`` once when none moves, else to ``vtk/meshes/meshes_<NNNNNN>.vtu`` per frame.
     """
 
     def __init__(self, out_dir, append: bool = False, restart_time: float | None = None):
@@ -173,6 +187,9 @@ class ParaViewOutput:
         self.particles = PvdIndex(self.dir / "particles.pvd", append, restart_time)
         self.gas = PvdIndex(self.dir / "gas.pvd", append, restart_time)
         self.walls = PvdIndex(self.dir / "walls.pvd", append, restart_time)
+        self.meshes = None
+        self._append, self._restart_time = append, restart_time
+        self._static_meshes_written = False
         self.frame = len(self.particles.entries)
         self._walls_file = "walls.vtu" if (self.dir / "walls.vtu").exists() else None
 
@@ -181,9 +198,10 @@ class ParaViewOutput:
         self._walls_file = "walls.vtu"
 
     def write(self, time: float, pos, radius, vel=None, omega=None, ids=None,
-              gas: dict | None = None, **point_data) -> int:
-        """Write one frame; ``gas`` = dict(origin=, spacing=, shape=, cell_data=) or None.
-        Returns the frame number."""
+              gas: dict | None = None, meshes: dict | None = None, **point_data) -> int:
+        """Write one frame; ``gas`` = dict(origin=, spacing=, shape=, cell_data=) or None;
+        ``meshes`` = dict(vertices=, triangles=, mesh=, moving=) (the mesh walls now, e.g.
+        :meth:`ParticleSystem.mesh_surfaces`) or None.  Returns the frame number."""
         k = self.frame
         rel = f"particles/particles_{k:06d}.vtu"
         write_particles_vtu(self.dir / rel, pos, radius, vel, omega, ids, **point_data)
@@ -195,5 +213,16 @@ class ParaViewOutput:
             self.gas.add(time, relg)
         if self._walls_file is not None:
             self.walls.add(time, self._walls_file)
+        if meshes is not None:
+            if self.meshes is None:
+                self.meshes = PvdIndex(self.dir / "meshes.pvd", self._append, self._restart_time)
+            if meshes.get("moving", True):
+                relm = f"meshes/meshes_{k:06d}.vtu"
+            else:
+                relm = "meshes.vtu"
+            if relm != "meshes.vtu" or not self._static_meshes_written:
+                write_meshes_vtu(self.dir / relm, meshes["vertices"], meshes["triangles"], meshes.get("mesh"))
+                self._static_meshes_written = relm == "meshes.vtu"
+            self.meshes.add(time, relm)
         self.frame = k + 1
         return k

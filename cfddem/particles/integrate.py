@@ -33,7 +33,7 @@ import numpy as np
 from cfddem._jit import kernel, parallel_kernel, prange
 from cfddem.particles._twin import serial_twin
 from cfddem.particles.contact import (P_1, P_2, P_3, P_4, P_MODEL, P_MU, P_MUR, pair_law,
-                                      rolling_torque_limited, spring_energy)
+                                      rolling_torque_limited, spring_energy, wall_contact_force)
 from cfddem.particles.neighbours import _min_image, _wrap
 from cfddem.particles.walls import wall_contact, wall_contact_s
 
@@ -224,10 +224,30 @@ def pair_forces(npairs, pi, pj, pos, vel, omg, radius, mass, inertia, params, pe
     return ovmax
 
 
+@kernel(inline="always")
+def _rolling_step(tmax, inert, dt, pwx, pwy, pwz):
+    """Rolling torque of one wall contact with limit ``tmax`` = mu_r R |F_n| on a particle whose
+    spin predicted without it is pw: -I pw/dt if that is within the limit (the spin stops), else
+    -tmax pw/|pw|; zero if pw = 0.  Returns (torque (3), the predicted spin with it (3))."""
+    pw = math.sqrt(pwx * pwx + pwy * pwy + pwz * pwz)
+    if pw == 0.0:
+        return 0.0, 0.0, 0.0, pwx, pwy, pwz
+    tstop = inert * pw / dt
+    if tstop <= tmax:
+        s = -inert / dt
+    else:
+        s = -tmax / pw
+    rx = s * pwx
+    ry = s * pwy
+    rz = s * pwz
+    return rx, ry, rz, pwx + dt * rx / inert, pwy + dt * ry / inert, pwz + dt * rz / inert
+
+
 @parallel_kernel
 def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ext_f, ext_t, has_ext,
                       pf, pr, has_roll, first_start, second_start, second_list,
                       wgeom, wref, wpar, nw, whist, won, wfw, wtw, wfn,
+                      has_mesh, mstart, K, ms_mesh, ms_fn, ms_tw, mpar, mf, mt,
                       gx, gy, gz, omx, omy, omz, cax, cay, caz,
                       dt, dt_hist, kick, rotating, Rv, Rw, drift_next, periodic_len, plo, ref, held):
     """Sum pair forces per particle (fixed order), add walls, gravity, centrifugal force, store
@@ -237,6 +257,12 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
     with w' = w + dt (T + T_ext)/I the spin predicted without it, the rolling torque of a wall
     contact is T_r = -I w'/dt if |I w'/dt| <= mu_r R |F_n| (the spin stops exactly: static rolling
     resistance) else -mu_r R |F_n| w'/|w'|.  It never reverses the spin within the step.
+
+    Mesh walls (``has_mesh``): their contact forces and torques were summed per particle into
+    mf, mt by :func:`cfddem.particles.mesh.mesh_forces` for the particles with candidate
+    triangles (``mstart[i] < mstart[i + 1]``); they are added after the analytic walls,
+    and their rolling friction (slots ``ms_mesh``, |F_n| ``ms_fn``, parameters ``mpar``) follows
+    the analytic walls' in the same way.
 
     With ``drift_next`` the opening half kick and the drift of the *next* step follow at once
     (the same operations as :func:`kick_drift`, so results do not depend on the fusion; it
@@ -331,40 +357,39 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
                 wgeom[w, 6], wgeom[w, 7], wgeom[w, 8], wgeom[w, 9], wgeom[w, 10], wgeom[w, 11],
                 wgeom[w, 12], wgeom[w, 13], wgeom[w, 14], x, y, z, r)
             if ov > 0.0:
-                # n_ab from the particle (a) towards the wall (b)
-                ax_ = -nx
-                ay_ = -ny
-                az_ = -nz
-                sx = r * wx
-                sy = r * wy
-                sz = r * wz
-                rvx = vx - wgeom[w, 16] + sy * az_ - sz * ay_
-                rvy = vy - wgeom[w, 17] + sz * ax_ - sx * az_
-                rvz = vz - wgeom[w, 18] + sx * ay_ - sy * ax_
-                cfx, cfy, cfz, ctx, cty, ctz, hx, hy, hz, fnabs = pair_law(
+                # surface velocity: v + spin n x (q - p) (spin about the wall's own axis)
+                wvx = wgeom[w, 16]
+                wvy = wgeom[w, 17]
+                wvz = wgeom[w, 18]
+                spin = wgeom[w, 19]
+                if spin != 0.0:
+                    lx = qx - wgeom[w, 1]
+                    ly = qy - wgeom[w, 2]
+                    lz = qz - wgeom[w, 3]
+                    wvx += spin * (wgeom[w, 5] * lz - wgeom[w, 6] * ly)
+                    wvy += spin * (wgeom[w, 6] * lx - wgeom[w, 4] * lz)
+                    wvz += spin * (wgeom[w, 4] * ly - wgeom[w, 5] * lx)
+                cfx, cfy, cfz, ptx, pty, ptz, hx, hy, hz, fnabs, twx, twy, twz = wall_contact_force(
                     wpar[w, P_MODEL], wpar[w, P_1], wpar[w, P_2], wpar[w, P_3], wpar[w, P_4],
-                    wpar[w, P_MU], m, r, ov, ax_, ay_, az_, rvx, rvy, rvz,
-                    whist[i, w, 0], whist[i, w, 1], whist[i, w, 2], dt_hist)
+                    wpar[w, P_MU], m, r, ov, nx, ny, nz, qx, qy, qz, vx, vy, vz, wx, wy, wz, wvx, wvy, wvz,
+                    whist[i, w, 0], whist[i, w, 1], whist[i, w, 2], wref[w, 0], wref[w, 1], wref[w, 2], dt_hist)
                 whist[i, w, 0] = hx
                 whist[i, w, 1] = hy
                 whist[i, w, 2] = hz
                 fx += cfx
                 fy += cfy
                 fz += cfz
-                tx += r * (ay_ * ctz - az_ * cty)
-                ty += r * (az_ * ctx - ax_ * ctz)
-                tz += r * (ax_ * cty - ay_ * ctx)
+                tx += ptx
+                ty += pty
+                tz += ptz
                 won[i, w] = 1
                 wfn[i, w] = fnabs
                 wfw[i, w, 0] = -cfx
                 wfw[i, w, 1] = -cfy
                 wfw[i, w, 2] = -cfz
-                lx = qx - wref[w, 0]
-                ly = qy - wref[w, 1]
-                lz = qz - wref[w, 2]
-                wtw[i, w, 0] = -(ly * cfz - lz * cfy)
-                wtw[i, w, 1] = -(lz * cfx - lx * cfz)
-                wtw[i, w, 2] = -(lx * cfy - ly * cfx)
+                wtw[i, w, 0] = twx
+                wtw[i, w, 1] = twy
+                wtw[i, w, 2] = twz
                 ovmax = max(ovmax, ov / r)
                 if wpar[w, P_MUR] > 0.0:
                     anyroll = True
@@ -375,6 +400,16 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
                     whist[i, w, c] = 0.0
                     wfw[i, w, c] = 0.0
                     wtw[i, w, c] = 0.0
+        if has_mesh and mstart[i] < mstart[i + 1]:
+            fx += mf[i, 0]
+            fy += mf[i, 1]
+            fz += mf[i, 2]
+            tx += mt[i, 0]
+            ty += mt[i, 1]
+            tz += mt[i, 2]
+            for s in range(K):
+                if ms_mesh[i, s] >= 0 and mpar[ms_mesh[i, s], P_MUR] > 0.0:
+                    anyroll = True
         if anyroll:
             pwx = wx + dt * (tx + etx) / inert
             pwy = wy + dt * (ty + ety) / inert
@@ -383,27 +418,28 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
                 mur = wpar[w, P_MUR]
                 if won[i, w] == 0 or mur == 0.0:
                     continue
-                tmax = mur * r * wfn[i, w]
-                pw = math.sqrt(pwx * pwx + pwy * pwy + pwz * pwz)
-                if pw == 0.0:
-                    continue
-                tstop = inert * pw / dt
-                if tstop <= tmax:
-                    s = -inert / dt
-                else:
-                    s = -tmax / pw
-                rx = s * pwx
-                ry = s * pwy
-                rz = s * pwz
+                rx, ry, rz, pwx, pwy, pwz = _rolling_step(mur * r * wfn[i, w], inert, dt, pwx, pwy, pwz)
                 tx += rx
                 ty += ry
                 tz += rz
-                pwx += dt * rx / inert
-                pwy += dt * ry / inert
-                pwz += dt * rz / inert
                 wtw[i, w, 0] -= rx
                 wtw[i, w, 1] -= ry
                 wtw[i, w, 2] -= rz
+            if has_mesh and mstart[i] < mstart[i + 1]:
+                for s in range(K):
+                    mm = ms_mesh[i, s]
+                    if mm < 0:
+                        continue
+                    mur = mpar[mm, P_MUR]
+                    if mur == 0.0:
+                        continue
+                    rx, ry, rz, pwx, pwy, pwz = _rolling_step(mur * r * ms_fn[i, s], inert, dt, pwx, pwy, pwz)
+                    tx += rx
+                    ty += ry
+                    tz += rz
+                    ms_tw[i, s, 0] -= rx
+                    ms_tw[i, s, 1] -= ry
+                    ms_tw[i, s, 2] -= rz
         # body forces: gravity and centrifugal -m Omega x (Omega x (r - r_axis))
         fx += m * gx
         fy += m * gy
@@ -535,6 +571,20 @@ def elastic_energy(npairs, pi, pj, pos, radius, periodic_len, hist, pp, n, wgeom
             if ov > 0.0:
                 e += spring_energy(wpar[w, P_MODEL], wpar[w, P_1], wpar[w, P_2], wpar[w, P_3], wpar[w, P_4],
                                    radius[i], ov, whist[i, w, 0], whist[i, w, 1], whist[i, w, 2])
+    return e
+
+
+@kernel
+def mesh_elastic_energy(n, K, ms_mesh, ms_ov, ms_h, mpar, radius):
+    """Energy in the springs of the mesh-wall contacts at the last evaluation (slots of
+    :mod:`cfddem.particles.mesh`), see :func:`cfddem.particles.contact.spring_energy`."""
+    e = 0.0
+    for i in range(n):
+        for s in range(K):
+            m = ms_mesh[i, s]
+            if m >= 0:
+                e += spring_energy(mpar[m, P_MODEL], mpar[m, P_1], mpar[m, P_2], mpar[m, P_3], mpar[m, P_4],
+                                   radius[i], ms_ov[i, s], ms_h[i, s, 0], ms_h[i, s, 1], ms_h[i, s, 2])
     return e
 
 

@@ -25,15 +25,17 @@ from cfddem.errors import CaseError
 from cfddem.particles import clumps as cl
 from cfddem.particles import integrate as it
 from cfddem.particles import neighbours as nb
+from cfddem.particles import mesh as mw
 from cfddem.particles.contact import ContactLaw
 from cfddem.particles.walls import KIND_OFF, Wall, pack_walls
 
 
 @dataclass
 class StepStatus:
-    """Outcome of :meth:`ParticleSystem.step`.  ``flag``: None, "nan", "overlap" or
-    "overflow_unrecoverable"; ``index``: the particle id concerned (-1 if none); ``value``: the
-    offending quantity; ``message``: one sentence with step, particle, quantity, likely cause."""
+    """Outcome of :meth:`ParticleSystem.step`.  ``flag``: None, "nan", "overlap", "mesh_contacts"
+    (a particle touched more mesh faces, edges or vertices at once than it has mesh contact
+    slots) or "overflow_unrecoverable"; ``index``: the particle id concerned (-1 if none);
+    ``value``: the offending quantity; ``message``: one sentence with step, particle, quantity, likely cause."""
 
     ok: bool = True
     flag: str | None = None
@@ -46,6 +48,10 @@ class StepStatus:
 _PARTICLE_ARRAYS = ("pos", "vel", "omega", "force", "torque", "radius", "mass", "inertia", "ids",
                     "ext_force", "ext_torque", "prev", "ref", "body", "boff", "held")
 _WALL_ARRAYS = ("whist", "won", "wfn", "wfw", "wtw")
+# mesh-wall contact slots (cfddem.particles.mesh): mesh index (-1: free), last normal, last
+# contact point, tangential spring, overlap, |F_n|, force and torque on the mesh
+_MESH_ARRAYS = ("ms_mesh", "ms_n", "ms_q", "ms_h", "ms_ov", "ms_fn", "ms_fw", "ms_tw")
+_ROW_ARRAYS = _PARTICLE_ARRAYS + _WALL_ARRAYS + _MESH_ARRAYS
 
 
 class ParticleSystem:
@@ -58,13 +64,29 @@ class ParticleSystem:
     def __init__(self, *, pp: ContactLaw, walls: list[Wall], dt: float,
                  gravity=(0.0, 0.0, 0.0), omega=(0.0, 0.0, 0.0), axis_point=(0.0, 0.0, 0.0),
                  periodic=(None, None, None), skin: float | None = None,
-                 capacity: int = 1024, max_overlap_ratio: float = 0.5):
+                 capacity: int = 1024, max_overlap_ratio: float = 0.5, mesh_slots: int = 6):
         if not (dt > 0 and math.isfinite(dt)):
             raise CaseError("dt", f"time step must be positive, got {dt}")
         if skin is not None and not skin > 0:
             raise CaseError("skin", f"must be positive, got {skin}")
         self.pp = pp
-        self.walls = list(walls)
+        # analytic walls and triangle-mesh walls (cfddem.particles.mesh.MeshWall) are kept apart:
+        # ``walls`` / ``wall_forces()`` are the analytic ones, ``meshes`` / ``mesh_forces()`` the meshes
+        self.walls = [w for w in walls if not isinstance(w, mw.MeshWall)]
+        self.meshes = [w for w in walls if isinstance(w, mw.MeshWall)]
+        names = [w.name for w in self.walls + self.meshes if w.name]
+        if len(set(names)) < len(names):
+            raise CaseError("walls", f"wall names must be unique, got {names}")
+        if not 1 <= int(mesh_slots) <= 60:
+            raise CaseError("mesh_slots", f"must be in 1..60, got {mesh_slots}")
+        self._mt = mw.MeshTables(self.meshes)
+        self.nm = len(self.meshes)
+        self._K = int(mesh_slots) if self.nm else 1
+        self._mesh_over = 0
+        self._mesh_cells = 0
+        self._mstart = np.zeros(1, np.int64)
+        self._mlist = np.zeros(1, np.int64)
+        self._mplist = np.zeros(0, np.int64)  # particles with candidate triangles
         self.dt = float(dt)
         self.gravity = np.asarray(gravity, float).reshape(3)
         self.frame_omega = np.asarray(omega, float).reshape(3)
@@ -121,22 +143,32 @@ class ParticleSystem:
 
     # ------------------------------------------------------------------ storage
     def _alloc_particles(self, cap):
-        old = {k: getattr(self, "_" + k, None) for k in _PARTICLE_ARRAYS + _WALL_ARRAYS}
+        old = {k: getattr(self, "_" + k, None) for k in _ROW_ARRAYS}
         nw = max(self.nw, 1)
+        K = self._K
         shapes = dict(pos=(cap, 3), vel=(cap, 3), omega=(cap, 3), force=(cap, 3), torque=(cap, 3),
                       radius=(cap,), mass=(cap,), inertia=(cap,), ids=(cap,), ext_force=(cap, 3),
                       ext_torque=(cap, 3), prev=(cap,), ref=(cap, 3), body=(cap,), boff=(cap, 3), held=(cap,),
                       whist=(cap, nw, 3),
-                      won=(cap, nw), wfn=(cap, nw), wfw=(cap, nw, 3), wtw=(cap, nw, 3))
-        dtypes = dict(ids=np.int64, prev=np.int64, body=np.int64, won=np.uint8, held=np.uint8)
+                      won=(cap, nw), wfn=(cap, nw), wfw=(cap, nw, 3), wtw=(cap, nw, 3),
+                      ms_mesh=(cap, K), ms_n=(cap, K, 3), ms_q=(cap, K, 3), ms_h=(cap, K, 3),
+                      ms_ov=(cap, K), ms_fn=(cap, K), ms_fw=(cap, K, 3), ms_tw=(cap, K, 3))
+        dtypes = dict(ids=np.int64, prev=np.int64, body=np.int64, won=np.uint8, held=np.uint8,
+                      ms_mesh=np.int64)
         for k, shp in shapes.items():
             a = np.zeros(shp, dtype=dtypes.get(k, np.float64))
             if k in ("mass", "inertia", "radius"):
                 a[:] = 1.0  # harmless values beyond n
+            if k == "ms_mesh":
+                a[:] = -1
             o = old[k]
             if o is not None and self.n > 0:
                 a[: self.n] = o[: self.n]
             setattr(self, "_" + k, a)
+        # per-evaluation mesh scratch (not carried over): new contacts, summed force and torque
+        self._mc = np.zeros((cap, K, 9))
+        self._mf = np.zeros((cap, 3))
+        self._mtq = np.zeros((cap, 3))
         self._cap = cap
 
     def _alloc_pairs(self, pcap, cap):
@@ -210,6 +242,8 @@ class ParticleSystem:
         for k in ("force", "torque", "ext_force", "ext_torque", "ref", "whist", "wfn", "wfw", "wtw"):
             getattr(self, "_" + k)[s] = 0.0
         self._won[s] = 0
+        for k in _MESH_ARRAYS:
+            getattr(self, "_" + k)[s] = -1 if k == "ms_mesh" else 0.0
         self._prev[s] = -1
         self._body[s] = -1
         self._boff[s] = 0.0
@@ -232,7 +266,7 @@ class ParticleSystem:
         removed_mass = float(self.mass[mask].sum())
         keep = np.nonzero(~mask)[0]
         k = len(keep)
-        for name in _PARTICLE_ARRAYS + _WALL_ARRAYS:
+        for name in _ROW_ARRAYS:
             a = getattr(self, "_" + name)
             a[:k] = a[keep]
         self.n = k
@@ -274,10 +308,10 @@ class ParticleSystem:
         nb.cell_sort(self._pos, n, lo, size, nc, cell_of, order, cell_start)
         # reorder particle arrays by cell (prev keeps each particle's index at the last build)
         ser = self._serial(n)
-        need = n * 3 * max(self.nw, 1)
-        if getattr(self, "_scratch", None) is None or self._scratch.size < need:
-            self._scratch = np.empty(max(need, 3 * self._cap * max(self.nw, 1)))
-        for name in _PARTICLE_ARRAYS + _WALL_ARRAYS:
+        width = 3 * max(self.nw, self._K, 1)
+        if getattr(self, "_scratch", None) is None or self._scratch.size < n * width:
+            self._scratch = np.empty(self._cap * width)
+        for name in _ROW_ARRAYS:
             nb.permute_rows(getattr(self, "_" + name), order, n, self._scratch, ser)
         old_index = self._prev[:n].copy()
         # swap buffers: the current list becomes the old one
@@ -311,6 +345,8 @@ class ParticleSystem:
         self._npairs = npairs
         self._n_built = n
         self._skin_built = skin
+        if self.nm:
+            self._mesh_lists(lo, size, nc, rmax, skin, ser)
         self._prev[:n] = np.arange(n)
         self._ref[:n] = self._pos[:n]
         if self._has_clumps():
@@ -318,24 +354,86 @@ class ParticleSystem:
         self._need_rebuild = False
         self.n_rebuilds += 1
 
+    def _mesh_lists(self, lo, size, nc, rmax, skin, ser):
+        """Bin the triangles into the particle cells and build each particle's candidate
+        triangles (cfddem.particles.mesh, 'Search')."""
+        n = self.n
+        t = self._mt
+        cut = rmax + skin
+        counts = np.zeros(t.nt, np.int64)
+        (mw.tri_cell_count_s if ser else mw.tri_cell_count)(t.T, t.nt, lo, size, nc, cut, counts)
+        start = np.zeros(t.nt + 1, np.int64)
+        np.cumsum(counts, out=start[1:])
+        ne = int(start[-1])
+        cells = np.empty(ne, np.int64)
+        tris = np.empty(ne, np.int64)
+        (mw.tri_cell_fill_s if ser else mw.tri_cell_fill)(t.T, t.nt, lo, size, nc, cut, start, cells, tris)
+        order = np.argsort(cells, kind="stable")
+        ncell = int(nc[0] * nc[1] * nc[2])
+        ctstart = np.zeros(ncell + 1, np.int64)
+        np.cumsum(np.bincount(cells, minlength=ncell), out=ctstart[1:])
+        ctri = np.ascontiguousarray(tris[order])
+        cnt = np.zeros(n, np.int64)
+        (mw.mesh_cand_count_s if ser else mw.mesh_cand_count)(n, self._pos, self._radius, skin, lo, size, nc,
+                                                              ctstart, ctri, t.T, cnt)
+        mstart = np.zeros(max(self._cap, n) + 1, np.int64)
+        np.cumsum(cnt, out=mstart[1: n + 1])
+        mlist = np.empty(max(int(mstart[n]), 1), np.int64)
+        (mw.mesh_cand_fill_s if ser else mw.mesh_cand_fill)(n, self._pos, self._radius, skin, lo, size, nc,
+                                                            ctstart, ctri, t.T, mstart, mlist)
+        self._mstart, self._mlist = mstart, mlist
+        # only particles with candidate triangles can touch a mesh: the force kernel visits them
+        # alone (a particle without candidates had no contact at the last evaluation either;
+        # its slots are cleared here all the same)
+        self._mplist = np.flatnonzero(cnt).astype(np.int64)
+        self._mstat = np.zeros((max(len(self._mplist), 1), 2))
+        none = cnt == 0
+        if np.any(self._ms_mesh[:n][none] >= 0):
+            for k in _MESH_ARRAYS:
+                getattr(self, "_" + k)[:n][none] = -1 if k == "ms_mesh" else 0.0
+        self._mesh_cells = ne
+        t.disp = 0.0
+
+    def mesh_stats(self) -> dict:
+        """Cost of the mesh-wall search at the last neighbour rebuild: triangles, (cell,
+        triangle) bin entries, candidate (particle, triangle) pairs and their mean per particle,
+        and the mesh contacts now."""
+        n = self.n
+        cand = int(self._mstart[n]) if self.nm and len(self._mstart) > n else 0
+        return dict(triangles=self._mt.nt, bin_entries=int(self._mesh_cells), candidates=cand,
+                    candidates_per_particle=cand / n if n else 0.0,
+                    contacts=int(np.sum(self._ms_mesh[:n] >= 0)) if self.nm else 0)
+
     # ------------------------------------------------------------------ stepping
     def _forces(self, kick: bool, dt_hist: float, drift_next: bool = False):
         cur = self._cur
         ser = self._serial(self.n)
+        ov_m = 0.0
+        if self.nm:
+            t = self._mt
+            nl = len(self._mplist)
+            over, ov_m = (mw.mesh_forces_s if self._serial(nl) else mw.mesh_forces)(
+                nl, self._mplist, self._pos, self._vel, self._omega, self._radius, self._mass, self._mstart,
+                self._mlist, t.T, t.tmesh, t.tedge, t.tvert, t.estart, t.etri, t.vstart, t.vtri,
+                t.par, t.vel, t.omg, t.cen, t.ref, t.act, self._K, self._mc, self._ms_mesh, self._ms_n,
+                self._ms_q, self._ms_h, self._ms_ov, self._ms_fn, self._ms_fw, self._ms_tw, self._mf,
+                self._mtq, self._mstat, dt_hist)
+            self._mesh_over = int(over)
         ov_pp = (it.pair_forces_s if ser else it.pair_forces)(self._npairs, cur["pi"], cur["pj"], self._pos, self._vel, self._omega,
                                self._radius, self._mass, self._inertia, self._pp_params, self._plen,
                                cur["hist"], cur["pf"], cur["pr"], self.dt, dt_hist)
         g, om, ap = self.gravity, self.frame_omega, self.axis_point
-        drift_next = drift_next and ov_pp <= self.max_overlap_ratio_limit
+        drift_next = drift_next and max(ov_pp, ov_m) <= self.max_overlap_ratio_limit and not self._mesh_over
         bad, ov_w, m2 = (it.gather_walls_kick_s if ser else it.gather_walls_kick)(
             self.n, self._pos, self._vel, self._omega, self._force, self._torque, self._radius,
             self._mass, self._inertia, self._ext_force, self._ext_torque, self._has_ext, cur["pf"], cur["pr"],
             self._has_roll, cur["first_start"], cur["second_start"], cur["second_list"],
             self._wgeom, self._wref, self._wpar, self.nw, self._whist, self._won, self._wfw,
-            self._wtw, self._wfn, g[0], g[1], g[2], om[0], om[1], om[2], ap[0], ap[1], ap[2],
+            self._wtw, self._wfn, self.nm > 0, self._mstart, self._K, self._ms_mesh, self._ms_fn, self._ms_tw,
+            self._mt.par, self._mf, self._mtq, g[0], g[1], g[2], om[0], om[1], om[2], ap[0], ap[1], ap[2],
             self.dt, dt_hist, kick, self._rotating, self._Rv, self._Rw, drift_next, self._plen,
             self._plo, self._ref, self._held)
-        self._last_ov = max(ov_pp, ov_w)
+        self._last_ov = max(ov_pp, ov_w, ov_m)
         self._pending_m2 = m2 if drift_next else -1.0
         return bad
 
@@ -368,6 +466,8 @@ class ParticleSystem:
         if self.n == 0:
             if len(self._moving):
                 self._translate_moving_walls(n_steps * self.dt)
+            for k in range(n_steps):
+                self._move_meshes(self.time + (k + 1) * self.dt)
             self.time += n_steps * self.dt
             self.step_count += n_steps
             return StepStatus(ok=True, steps_done=n_steps)
@@ -394,7 +494,10 @@ class ParticleSystem:
             if len(self._moving):
                 # walls move with the particles' drift: geometry at t + dt for the new forces
                 self._translate_moving_walls(dt)
-            if m2 > (0.5 * self._skin_built) ** 2 or self._need_rebuild or not math.isfinite(m2):
+            if self.nm:
+                self._move_meshes(self.time + dt)
+            if (m2 > (0.5 * self._skin_built) ** 2 or self._need_rebuild or not math.isfinite(m2)
+                    or self._mt.disp > 0.5 * self._skin_built):
                 try:
                     self._rebuild()
                 except MemoryError as exc:
@@ -410,9 +513,21 @@ class ParticleSystem:
                 st = self._nan_status()
                 st.steps_done = s + 1
                 return st
+            if self._mesh_over:
+                i = int(np.argmax(np.sum(self._ms_mesh[: self.n] >= 0, axis=1)))
+                pid = int(self._ids[i])
+                return self._fail("mesh_contacts", pid, float(self._K),
+                                  f"step {self.step_count}: particle id {pid} touches more than "
+                                  f"mesh_slots = {self._K} mesh faces, edges or vertices at once; "
+                                  "likely cause: a very fine or crumpled mesh around a particle "
+                                  "(raise ParticleSystem(mesh_slots=...))", s + 1)
             if self._last_ov > self.max_overlap_ratio_limit:
                 who, val = it.worst_overlap(self._npairs, self._cur["pi"], self._cur["pj"], self._pos,
                                             self._radius, self._plen, self.n, self._wgeom, self.nw)
+                if self.nm:
+                    q = self._ms_ov[: self.n] / self._radius[: self.n, None]
+                    if q.size and q.max() > val:
+                        who, val = int(np.unravel_index(np.argmax(q), q.shape)[0]), float(q.max())
                 if who >= 0 and val >= self.max_overlap_ratio_limit:
                     pid = int(self._ids[who])
                     what = f"particle id {pid} has overlap/radius = {val:.3g}"
@@ -436,7 +551,7 @@ class ParticleSystem:
         sp = sp[np.isfinite(sp)]
         v = max(float(sp.max()) if sp.size else 0.0, 1e-3)
         tc = self.pp.collision_time(0.5 * mmin, 0.5 * rmin, v)
-        for w in self.walls:
+        for w in self.walls + self.meshes:
             tc = min(tc, w.contact.collision_time(mmin, rmin, v))
         return tc
 
@@ -481,9 +596,13 @@ class ParticleSystem:
         if self._need_rebuild:
             self._rebuild()
         cur = self._cur
-        return float(it.elastic_energy(self._npairs, cur["pi"], cur["pj"], self._pos, self._radius,
-                                       self._plen, cur["hist"], self._pp_params[0], self.n, self._wgeom,
-                                       self.nw, self._wpar, self._whist))
+        e = float(it.elastic_energy(self._npairs, cur["pi"], cur["pj"], self._pos, self._radius,
+                                    self._plen, cur["hist"], self._pp_params[0], self.n, self._wgeom,
+                                    self.nw, self._wpar, self._whist))
+        if self.nm:  # mesh contacts as at the last force evaluation
+            e += float(it.mesh_elastic_energy(self.n, self._K, self._ms_mesh, self._ms_ov, self._ms_h,
+                                              self._mt.par, self._radius))
+        return e
 
     def max_overlap_ratio(self) -> float:
         """Max over contacts (pairs and walls) of overlap / min radius at the last evaluation."""
@@ -512,22 +631,102 @@ class ParticleSystem:
         self._held[: self.n][mask] = 0
         return int(mask.sum())
 
-    # ------------------------------------------------------------------ wall control
-    def _wall_index(self, wall) -> int:
+    # ------------------------------------------------------------------ mesh walls
+    def _lookup(self, items, wall, what: str) -> int:
+        """Index of ``wall`` (a name or an index) in ``items`` (``walls`` or ``meshes``)."""
         if isinstance(wall, str):
-            for k, w in enumerate(self.walls):
+            for k, w in enumerate(items):
                 if w.name == wall:
                     return k
-            raise KeyError(f"no wall named {wall!r} (walls: {[w.name for w in self.walls]})")
+            raise KeyError(f"no {what} named {wall!r} (walls: {[w.name for w in self.walls + self.meshes]})")
         k = int(wall)
-        if not 0 <= k < self.nw:
-            raise IndexError(f"wall index {k} out of range (0..{self.nw - 1})")
+        if not 0 <= k < len(items):
+            raise IndexError(f"{what} index {k} out of range (0..{len(items) - 1})")
         return k
+
+    def _mesh_index(self, wall) -> int:
+        return self._lookup(self.meshes, wall, "mesh wall")
+
+    def _is_mesh(self, wall) -> bool:
+        return isinstance(wall, str) and any(w.name == wall for w in self.meshes)
+
+    def _move_meshes(self, t_new: float) -> None:
+        """Apply the switch events due by ``t_new`` and move the moving meshes by one step."""
+        mt = self._mt
+        while mt.next_event < len(mt.events) and mt.events[mt.next_event][0] <= t_new + 1e-9 * self.dt:
+            _, k, on = mt.events[mt.next_event]
+            mt.next_event += 1
+            self.set_mesh_active(k, on)
+        mt.advance(self.dt)
+
+    def set_mesh_active(self, wall, active: bool) -> None:
+        """Switch mesh wall ``wall`` (name or index into ``meshes``) on or off; off drops its
+        contacts (and their history) at the next evaluation."""
+        self._mt.act[self._mesh_index(wall)] = 1 if active else 0
+        self._forces_stale = True
+
+    def mesh_active(self, wall) -> bool:
+        return bool(self._mt.act[self._mesh_index(wall)])
+
+    def set_mesh_motion(self, wall, velocity=None, angular_velocity=None) -> None:
+        """Change the translation velocity (m/s) and/or the angular velocity (rad/s, about the
+        mesh's centre, which moves with it) of mesh wall ``wall`` from now on."""
+        k = self._mesh_index(wall)
+        if velocity is not None:
+            self._mt.vel[k] = mw._vec3("velocity", velocity)
+        if angular_velocity is not None:
+            self._mt.omg[k] = mw._vec3("angular_velocity", angular_velocity)
+
+    def mesh_vertices(self, wall) -> np.ndarray:
+        """(nv, 3) current vertex positions of mesh wall ``wall`` (triangles: ``meshes[k].triangles``)."""
+        return self._mt.vertices_now(self._mesh_index(wall))
+
+    def mesh_surfaces(self) -> dict:
+        """All mesh walls now, for ParaView (:meth:`cfddem.io.vtk.ParaViewOutput.write`):
+        dict(vertices (nv, 3), triangles (nt, 3), mesh (nt,) index into ``meshes``, moving:
+        whether any mesh moves)."""
+        Vs, Fs, ks, off = [], [], [], 0
+        for k, m in enumerate(self.meshes):
+            Vs.append(self._mt.vertices_now(k))
+            Fs.append(m.triangles + off)
+            ks.append(np.full(m.n_triangles, k, np.int64))
+            off += len(m.vertices)
+        if not Vs:
+            return dict(vertices=np.zeros((0, 3)), triangles=np.zeros((0, 3), np.int64),
+                        mesh=np.zeros(0, np.int64), moving=False)
+        return dict(vertices=np.concatenate(Vs), triangles=np.concatenate(Fs), mesh=np.concatenate(ks),
+                    moving=bool(len(self._mt.moving())))
+
+    def _reduce_meshes(self):
+        fo = np.zeros((max(self.nm, 1), 3))
+        to = np.zeros((max(self.nm, 1), 3))
+        if self.nm:
+            mw.reduce_meshes(self.n, self._K, self._ms_mesh, self._ms_fw, self._ms_tw, fo, to)
+        return fo[: self.nm], to[: self.nm]
+
+    def mesh_forces(self) -> np.ndarray:
+        """(n_meshes, 3) force exerted by the particles on each mesh wall at the last evaluation."""
+        return self._reduce_meshes()[0]
+
+    def mesh_torques(self) -> np.ndarray:
+        """(n_meshes, 3) torque exerted by the particles on each mesh wall about its reference
+        point (``ref_point``, moving with the mesh's translation)."""
+        return self._reduce_meshes()[1]
+
+    def mesh_contacts(self) -> np.ndarray:
+        """(n,) number of mesh-wall contacts of each particle at the last evaluation."""
+        return np.sum(self._ms_mesh[: self.n] >= 0, axis=1) if self.nm else np.zeros(self.n, np.int64)
+
+    # ------------------------------------------------------------------ wall control
+    def _wall_index(self, wall) -> int:
+        return self._lookup(self.walls, wall, "wall")
 
     def set_wall_active(self, wall, active: bool) -> None:
         """Switch wall ``wall`` (index or name) on or off.  Switching off drops its contacts and
         their tangential history at once (a silo gate that opens); switching on restores its
-        kind (the caller makes sure no particle sits inside it)."""
+        kind (the caller makes sure no particle sits inside it).  Mesh walls by name too."""
+        if self._is_mesh(wall):
+            return self.set_mesh_active(wall, active)
         k = self._wall_index(wall)
         self._wgeom[k, 0] = self._wkind[k] if active else KIND_OFF
         if not active:
@@ -540,11 +739,16 @@ class ParticleSystem:
         self._forces_stale = True
 
     def wall_active(self, wall) -> bool:
+        if self._is_mesh(wall):
+            return self.mesh_active(wall)
         return bool(self._wgeom[self._wall_index(wall), 0] >= 0.0)
 
     def set_wall_velocity(self, wall, velocity) -> None:
         """Translation velocity of wall ``wall`` (m/s, in the simulation frame): from now on the
-        wall moves by v dt per step and v enters its relative contact velocity."""
+        wall moves by v dt per step and v enters its relative contact velocity.  Mesh walls by
+        name too (:meth:`set_mesh_motion`)."""
+        if self._is_mesh(wall):
+            return self.set_mesh_motion(wall, velocity=velocity)
         k = self._wall_index(wall)
         self._wgeom[k, 16:19] = np.asarray(velocity, float).reshape(3)
         self._moving = np.flatnonzero(np.any(self._wgeom[: self.nw, 16:19] != 0.0, axis=1))
@@ -675,8 +879,12 @@ class ParticleSystem:
                         need_rebuild=int(self._need_rebuild), forces_stale=int(self._forces_stale),
                         last_ov=self._last_ov, pending_m2=self._pending_m2,
                         w_geom=self._wgeom.copy(), w_ref=self._wref.copy())
-        for name in _PARTICLE_ARRAYS + _WALL_ARRAYS:
+        for name in _ROW_ARRAYS if self.nm else _PARTICLE_ARRAYS + _WALL_ARRAYS:
             st["p_" + name] = getattr(self, "_" + name)[:n].copy()
+        if self.nm:
+            st.update(self._mt.get_state())
+            st["l_mstart"] = self._mstart[: self._n_built + 1].copy()
+            st["l_mlist"] = self._mlist[: int(self._mstart[self._n_built])].copy()
         cur = self._cur
         npairs = self._npairs
         for name in ("pi", "pj", "hist", "pf", "pr", "second_list"):
@@ -694,7 +902,10 @@ class ParticleSystem:
             self.n = 0
             self._alloc_particles(max(int(1.5 * n), 16))
         self.n = n
-        for name in _PARTICLE_ARRAYS + _WALL_ARRAYS:
+        for name in _ROW_ARRAYS:
+            if name in _MESH_ARRAYS and "p_" + name not in state:  # written without mesh walls
+                getattr(self, "_" + name)[:n] = -1 if name == "ms_mesh" else 0.0
+                continue
             if name in ("body", "boff") and "p_" + name not in state:  # written before clumps
                 getattr(self, "_" + name)[:n] = -1 if name == "body" else 0.0
                 continue
@@ -723,6 +934,17 @@ class ParticleSystem:
             self._wgeom[...] = np.asarray(state["w_geom"]).reshape(self._wgeom.shape)
             self._wref[...] = np.asarray(state["w_ref"]).reshape(self._wref.shape)
             self._moving = np.flatnonzero(np.any(self._wgeom[: self.nw, 16:19] != 0.0, axis=1))
+        if self.nm and "m_offset" in state:
+            self._mt.set_state(state)
+            nb_ = int(state["n_built"])
+            self._mstart = np.zeros(max(self._cap, nb_) + 1, np.int64)
+            self._mstart[: nb_ + 1] = state["l_mstart"]
+            self._mlist = np.zeros(max(len(state["l_mlist"]), 1), np.int64)
+            self._mlist[: len(state["l_mlist"])] = state["l_mlist"]
+            self._mplist = np.flatnonzero(np.diff(self._mstart[: nb_ + 1])).astype(np.int64)
+            self._mstat = np.zeros((max(len(self._mplist), 1), 2))
+        elif self.nm:
+            self._need_rebuild = True
         self.time = float(state["time"])
         self.step_count = int(state["step_count"])
         self._next_id = int(state["next_id"])

@@ -3,7 +3,7 @@
 A wall is described to kernels by one float64 row of ``WALL_NGEOM`` numbers (geometry) and one
 contact-parameter row (:mod:`cfddem.particles.contact`).  Geometry row layout::
 
-    [kind, p(3), n(3), a1(3), a2(3), h1, h2, v(3), ref(3)]
+    [kind, p(3), n(3), a1(3), a2(3), h1, h2, (unused), v(3), spin]
 
 ``kind`` 0 = infinite plane through p with unit normal n; 1 = rectangle centred at p spanned by
 unit in-plane axes a1, a2 with half-extents h1, h2; a negative kind (``KIND_OFF``) is a wall
@@ -12,8 +12,11 @@ surface of a finite cylinder: axis n through p, radius h1, axial extent -h2 <= s
 a1[0] = -1 for the inside surface (particles inside the ring), +1 for the outside.  v is the
 wall velocity: it enters the relative contact velocity, and :class:`ParticleSystem` translates a
 wall with non-zero v by v dt every step (its position p(t) = p(t0) + v (t - t0), and the
-reference point moves with it); ref the point about which the torque exerted on the wall is
-accumulated.  New kinds (e.g. hopper cones) add a branch in :func:`wall_contact_s` that
+reference point moves with it).  ``spin`` is an angular speed (rad/s) of the surface about the
+wall's own axis n through p (right-handed): the surface velocity at the contact point q is
+v + spin n x (q - p) while the geometry stays put (exact for surfaces of revolution about n: a
+rotating drum, its end plates, a turntable).  The reference points about which the torque
+exerted on each wall is accumulated are packed separately (:func:`pack_walls`).  New kinds (e.g. hopper cones) add a branch in :func:`wall_contact_s` that
 returns the same (overlap, outward normal, contact point).
 
 One-sided: particles live on the +n side.  For a plane the contact exists while the centre
@@ -72,6 +75,7 @@ class Wall:
     velocity: tuple = (0.0, 0.0, 0.0)
     ref_point: tuple | None = None
     name: str = ""
+    spin: float = 0.0  # rad/s about the wall's axis / normal through its point (module docstring)
 
     def geometry(self) -> np.ndarray:  # pragma: no cover - overridden
         raise NotImplementedError
@@ -82,6 +86,9 @@ class Wall:
         g[0] = kind
         g[1:4] = np.asarray(self.point, float)
         g[16:19] = np.asarray(self.velocity, float)
+        if not math.isfinite(self.spin):
+            raise CaseError("wall.spin", f"must be finite, got {self.spin}")
+        g[19] = float(self.spin)
         return g
 
 

@@ -40,7 +40,7 @@ MODEL_HERTZ_MINDLIN = HertzMindlinContact.model_id
 __all__ = ["CONTACT_LAWS", "DEFAULT_LAW", "ContactLaw", "HertzMindlinContact", "LawKey", "LinearContact",
            "MODEL_HERTZ_MINDLIN", "MODEL_LINEAR", "NPARAM", "P_1", "P_2", "P_3", "P_4", "P_MODEL", "P_MU", "P_MUR",
            "check_contact_values", "contact_keys", "contact_law", "law_class", "pair_law", "project_history",
-           "rolling_torque_limited", "spring_energy"]
+           "rolling_torque_limited", "spring_energy", "wall_contact_force"]
 
 
 def law_class(model: str) -> type[ContactLaw]:
@@ -156,3 +156,34 @@ def pair_law(model, p1, p2, p3, p4, mu, meff, reff, dn, nx, ny, nz, vx, vy, vz, 
 def spring_energy(model, p1, p2, p3, p4, reff, dn, hx, hy, hz):
     """Elastic energy of one contact of the law with id ``model`` (its ``energy`` kernel)."""
     return _energy(model, p1, p2, p3, p4, reff, dn, hx, hy, hz)
+
+
+@kernel
+def wall_contact_force(model, p1, p2, p3, p4, mu, m, r, ov, nx, ny, nz, qx, qy, qz, vx, vy, vz, wx, wy, wz,
+                       wvx, wvy, wvz, hx, hy, hz, refx, refy, refz, dt_hist):
+    """One contact of a sphere (mass m, radius r, velocity v, spin w) with a wall (analytic or
+    mesh) of the law with id ``model`` (row slots p1..p4, mu): overlap ``ov``, unit normal n from
+    the wall towards the centre, contact point q, wall surface velocity wv at q, tangential
+    spring h, reference point ref of the torque on the wall.  The wall is the partner b of
+    infinite mass (m* = m, R* = r) in :func:`pair_law`.
+
+    Returns (F on the sphere (3), torque on the sphere about its centre (3), new spring (3),
+    |F_n|, torque on the wall about ref (3)).  The force on the wall is -F.
+    """
+    # n_ab from the particle (a) towards the wall (b)
+    ax_ = -nx
+    ay_ = -ny
+    az_ = -nz
+    sx = r * wx
+    sy = r * wy
+    sz = r * wz
+    rvx = vx - wvx + sy * az_ - sz * ay_
+    rvy = vy - wvy + sz * ax_ - sx * az_
+    rvz = vz - wvz + sx * ay_ - sy * ax_
+    cfx, cfy, cfz, ctx, cty, ctz, hx, hy, hz, fnabs = pair_law(
+        model, p1, p2, p3, p4, mu, m, r, ov, ax_, ay_, az_, rvx, rvy, rvz, hx, hy, hz, dt_hist)
+    lx = qx - refx
+    ly = qy - refy
+    lz = qz - refz
+    return (cfx, cfy, cfz, r * (ay_ * ctz - az_ * cty), r * (az_ * ctx - ax_ * ctz), r * (ax_ * cty - ay_ * ctx),
+            hx, hy, hz, fnabs, -(ly * cfz - lz * cfy), -(lz * cfx - lx * cfz), -(lx * cfy - ly * cfx))
