@@ -833,10 +833,14 @@ def describe_case(case: Case) -> list[str]:
         pred = predicted_step_limit(case)
         lines.append(f"time step: dt = {case.time.dt:g} s = t_c/{1 / ratio:.1f} "
                      f"({'OK' if ratio <= 0.05 else 'WARNING: above t_c/20' if ratio <= 0.2 else 'REFUSED: above t_c/5'})")
-        lines.append(f"stable step: {pred['dt']:.3g} s = {pred['ratio']:.3g} t_c, dt is {case.time.dt / pred['dt']:.3g} of it "
-                     + ("(OK)" if case.time.dt <= pred["sure"] else "(WARNING: within a grid step of the maps' failures)"
-                        if case.time.dt <= pred["dt"] else f"(REFUSED: the run would fail, {pred['cause']})")
-                     + f"; source: {pred['source']}")
+        if not math.isfinite(pred["dt"]):
+            lines.append("stable step: not predicted (the contact law gives no linearised springs)")
+        else:
+            lines.append(f"stable step: {pred['dt']:.3g} s = {pred['ratio']:.3g} t_c, dt is "
+                         f"{case.time.dt / pred['dt']:.3g} of it "
+                         + ("(OK)" if case.time.dt <= pred["sure"] else "(WARNING: within a grid step of the maps' "
+                            "failures)" if case.time.dt <= pred["dt"] else f"(REFUSED: the run would fail, {pred['cause']})")
+                         + f"; source: {pred['source']}")
     g = gravity_vector(case)
     om = frame_omega(case)
     lines.append(f"gravity: ({g[0]:.4g}, {g[1]:.4g}, {g[2]:.4g}) m/s2; frame rotation: "

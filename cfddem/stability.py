@@ -169,11 +169,14 @@ def contact_step_limit(law, m_eff: float, r_eff: float, speed: float) -> dict:
     Hertz-Mindlin; Hertz-Mindlin linearised at the largest overlap of a head-on impact at
     ``speed``) for its normal mode (mass m*) and its sticking tangential mode (mass 2/7 m*, a
     sphere rolling against the contact), each with its own damping ratio
-    (:func:`verlet_step_limit`).  Returns {"normal": dt, "tangential": dt}."""
-    dv = law.derived(m_eff, r_eff, speed) if hasattr(law, "E_star") else law.derived(m_eff)
-    kn, kt = dv.get("S_n", dv.get("k_n")), dv.get("S_t", dv.get("k_t"))
+    (:func:`verlet_step_limit`), from the law's ``linearised`` springs.  Returns {"normal": dt,
+    "tangential": dt}; empty for a law that gives no linearisation."""
+    dv = law.linearised(m_eff, r_eff, speed)
+    if dv is None:
+        return {}
     out = {}
-    for name, k, eta, m in (("normal", kn, dv["eta_n"], m_eff), ("tangential", kt, dv["eta_t"], 2.0 / 7.0 * m_eff)):
+    for name, k, eta, m in (("normal", dv["k_n"], dv["eta_n"], m_eff),
+                            ("tangential", dv["k_t"], dv["eta_t"], 2.0 / 7.0 * m_eff)):
         omega = math.sqrt(k / m)
         out[name] = verlet_step_limit(abs(eta) / (2.0 * math.sqrt(k * m))) / omega
     return out

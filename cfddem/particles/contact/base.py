@@ -139,6 +139,13 @@ class ContactLaw:
         """The derived numbers ``cfddem check`` prints for one contact pair."""
         raise NotImplementedError
 
+    def linearised(self, m_eff: float, r_eff: float, speed: float) -> dict[str, float] | None:
+        """The contact as two damped springs for the stable-step prediction of ``cfddem check``
+        (:func:`cfddem.stability.contact_step_limit`): ``k_n``, ``eta_n`` (normal mode, mass
+        m*) and ``k_t``, ``eta_t`` (sticking tangential mode), a nonlinear law linearised at the
+        overlap of a head-on impact at ``speed``.  None: the law gives no prediction."""
+        return None
+
 
 # --- compiled pieces shared by every law ----------------------------------------------------
 

@@ -183,6 +183,10 @@ class HertzMindlinContact(ContactLaw):
         time-step scale; G = E / (2 (1 + nu)), particle material)."""
         return math.pi * radius * math.sqrt(density / self.G) / (0.1631 * self.nu + 0.8766)
 
+    def linearised(self, m_eff: float, r_eff: float, speed: float) -> dict[str, float]:
+        dv = self.derived(m_eff, r_eff, speed)
+        return {"k_n": dv["S_n"], "eta_n": dv["eta_n"], "k_t": dv["S_t"], "eta_t": dv["eta_t"]}
+
     def derived(self, m_eff: float, r_eff: float | None = None, speed: float | None = None,
                 overlap: float | None = None) -> dict[str, float]:
         """Derived numbers for m*, R*, impact speed v: E*, G*, beta, t_c, and the stiffness and

@@ -152,6 +152,10 @@ class LinearContact(ContactLaw):
             mu_r=self.mu_r,
         )
 
+    def linearised(self, m_eff: float, r_eff: float, speed: float) -> dict[str, float]:
+        dv = self.derived(m_eff)
+        return {"k_n": self.k_n, "eta_n": dv["eta_n"], "k_t": dv["k_t"], "eta_t": dv["eta_t"]}
+
     def describe(self, m_eff: float, r_eff: float, speed: float, radius: float) -> str:
         """k_n, eta_n, k_t, eta_t, t_c at m* (R*, the impact speed and the radius do not enter)."""
         dv = self.derived(m_eff)
