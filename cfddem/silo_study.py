@@ -191,7 +191,8 @@ def run_beverloo_from_args(args) -> int:
 def write_silo_plots(h5, out) -> list[Path]:
     """Two PNGs of a finished silo run: ``silo_discharge.png`` (discharged mass against time,
     the fitted line over its window) and ``silo_field.png`` (the time-averaged speed on the x-y
-    grid with velocity arrows and the flow-channel boundary)."""
+    grid with velocity arrows and the flow-channel boundary; not drawn before any velocity
+    sample, e.g. when the gate never opened)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -223,6 +224,8 @@ def write_silo_plots(h5, out) -> list[Path]:
     fig.savefig(files[-1], dpi=110)
     plt.close(fig)
     f = s["field"]
+    if not np.any(np.isfinite(f["vx"])):  # no velocity sample yet (the gate never opened)
+        return files
     x, y, vx, vy = f["x"], f["y"], f["vx"], f["vy"]
     speed = np.hypot(vx, vy)
     fig, ax = plt.subplots(figsize=(4.5, 6))

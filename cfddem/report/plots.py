@@ -173,42 +173,58 @@ def _find_chute(meas: dict) -> dict:
     return meas
 
 
-def write_run_report(results_h5_path, out_dir) -> list[Path]:
-    """Write every plot whose data are in the results file to ``out_dir`` and an index
-    ``report.txt`` listing each plot written and each plot skipped with the reason.
-
-    Returns the written paths (PNG files, then ``report.txt``). Skips are also logged as
-    warnings on the ``cfddem.report`` logger.
-    """
-    from cfddem.io.results import read_measurements, read_series
+def chute_plots(results_h5_path, out_dir) -> list[tuple[str, Path | None, str]]:
+    """The chute's plots (:meth:`cfddem.scenes.chute.ChuteScene.plots`): bed height, surface
+    velocity, mean velocity and depth profiles, each ``(file name, path or None, why skipped)``."""
+    from cfddem.io.results import read_measurements
 
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    series = read_series(results_h5_path)
     raw = read_measurements(results_h5_path)
     meas = _find_chute(raw)
     is_chute = isinstance(raw.get("chute"), dict) or "sensor_x" in raw
-    jobs = [
-        ("series.png", plot_series, series),
-        ("bed_height.png", plot_bed_height, meas),
-        ("surface_velocity.png", plot_surface_velocity, meas),
-        ("mean_velocity.png", plot_mean_velocity, meas),
-        ("depth_profiles.png", plot_depth_profiles, meas),
-    ]
-    written: list[Path] = []
-    lines = [f"report of {results_h5_path}"]
-    for fname, fn, data in jobs:
-        if fn is not plot_series and not is_chute:
-            # not a chute run (silo, shear cell, box): its scene writes its own plots
-            lines.append(f"skipped  {fname}: no chute measurements in this run")
+    jobs = [("bed_height.png", plot_bed_height), ("surface_velocity.png", plot_surface_velocity),
+            ("mean_velocity.png", plot_mean_velocity), ("depth_profiles.png", plot_depth_profiles)]
+    done = []
+    for fname, fn in jobs:
+        if not is_chute:  # measurements off, or a run that ended before the averaging started
+            done.append((fname, None, "no chute measurements in this run"))
             continue
         try:
-            written.append(fn(data, out / fname))
-            lines.append(f"written  {fname}")
+            done.append((fname, fn(meas, out / fname), ""))
         except KeyError as e:
             reason = e.args[0] if e.args else str(e)
             log.warning("report: skipped %s (%s)", fname, reason)
+            done.append((fname, None, reason))
+    return done
+
+
+def write_run_report(results_h5_path, out_dir) -> list[Path]:
+    """Write the time series plot and every plot of the run's scene (its ``plots`` hook,
+    :mod:`cfddem.scenes`) whose data are in the results file to ``out_dir``, and an index
+    ``report.txt`` listing each plot written and each plot skipped with the reason.  The scene
+    is the stored configuration's ``geometry.type`` (a file without one: the default scene).
+
+    Returns the written paths (PNG files, then ``report.txt``). Skips of plots whose data a run
+    should have are also logged as warnings on the ``cfddem.report`` logger.
+    """
+    from cfddem.io.results import read_config, read_series
+    from cfddem.scenes import DEFAULT_SCENE, scene_class
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    try:
+        _, config = read_config(results_h5_path)
+        scene = scene_class(config["geometry"]["type"])
+    except (KeyError, TypeError, ValueError, OSError):
+        scene = scene_class(DEFAULT_SCENE)
+    written: list[Path] = [plot_series(read_series(results_h5_path), out / "series.png")]
+    lines = [f"report of {results_h5_path}", "written  series.png"]
+    for fname, path, reason in scene.plots(results_h5_path, out):
+        if path is None:
             lines.append(f"skipped  {fname}: {reason}")
+        else:
+            written.append(path)
+            lines.append(f"written  {fname}")
     idx = out / "report.txt"
     idx.write_text("\n".join(lines) + "\n")
     written.append(idx)

@@ -24,6 +24,7 @@ Before a run, from the case alone (class methods; ``cfddem check`` uses them too
 - ``describe(case)``: extra lines for ``cfddem check``
 - ``gas_domain(case)``: the :class:`cfddem.gas.domain.GasDomain` (box, grid, a boundary
   condition per face, initial fields) when the scene supports gas; None: gas is refused
+- ``plots(results_h5, out_dir)``: its PNG plots of a finished run (beside the time series)
 
 During a run (instance methods; ``self.sim`` is the Simulation):
 
@@ -113,6 +114,12 @@ class Scene:
     @classmethod
     def gas_domain(cls, case):
         return None
+
+    @classmethod
+    def plots(cls, results_h5, out_dir) -> list:
+        """The scene's plots of a finished run: ``(file name, path or None, why skipped)`` each
+        (``cfddem report`` and the end of a run draw them beside the time series)."""
+        return []
 
     # -------------------------------------------------------------- during a run
     def make_inlet(self):

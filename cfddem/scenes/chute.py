@@ -243,6 +243,12 @@ class ChuteScene(Scene):
             notes=[f"gas inlet velocity {vin:.4g} m/s; lid: {gcfg.lid} (max cross-wind {wind:.3g} m/s); "
                    f"min porosity: computed at run time (cells below 0.3 are counted in the end-of-run summary)"])
 
+    @classmethod
+    def plots(cls, results_h5, out_dir) -> list:
+        from ..report.plots import chute_plots
+
+        return chute_plots(results_h5, out_dir)
+
     # -------------------------------------------------------------- during a run
     def make_inlet(self):
         return self.sluice(self.case) if self.case.inlet.type == "sluice" else None

@@ -394,6 +394,20 @@ class SiloScene(Scene):
     def inserts_clumps(cls, r: dict) -> bool:
         return True
 
+    @classmethod
+    def plots(cls, results_h5, out_dir) -> list:
+        """The discharge curve with its fitted flow rate and the time-averaged velocity field
+        with the flow-channel boundary (:func:`cfddem.silo_study.write_silo_plots`)."""
+        from ..io.results import read_measurements
+        from ..silo_study import write_silo_plots
+
+        names = ("silo_discharge.png", "silo_field.png")
+        if "silo" not in read_measurements(results_h5):
+            return [(n, None, "no silo measurements in this run") for n in names]
+        paths = {p.name: p for p in write_silo_plots(results_h5, out_dir)}
+        return [(n, paths.get(n), "" if n in paths else "no velocity sample (the gate never opened)")
+                for n in names]
+
     def __init__(self, sim):
         super().__init__(sim)
         s = self.case.resolved["silo"]

@@ -60,6 +60,14 @@ def test_scene_example_runs(name, gas, tmp_path):
             assert "gas_pressure_iterations" in f["series"]
             assert "gas" in groups
     assert (tmp_path / "run" / "case.resolved.toml").exists()
+    # the scene's plots (cfddem report): each written as PNG or skipped with its reason
+    from cfddem.report.plots import write_run_report
+
+    files = write_run_report(tmp_path / "run" / "results.h5", tmp_path / "rep")
+    text = files[-1].read_text()
+    assert files[0].name == "series.png" and files[0].stat().st_size > 5000
+    for fname, path, reason in cls.plots(tmp_path / "run" / "results.h5", tmp_path / "rep2"):
+        assert (f"written  {fname}" in text) if path else (f"skipped  {fname}: {reason}" in text)
 
 
 def test_every_scene_declares_its_keys_and_example():
