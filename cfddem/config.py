@@ -16,6 +16,7 @@ import copy
 import difflib
 import json
 import math
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,6 +26,7 @@ from .coupling.drag import CLOSURES, DEFAULT_CLOSURE
 from .errors import CaseError
 from .particles.contact import CONTACT_LAWS, DEFAULT_LAW, check_contact_values, check_docs, contact_keys
 from .scenes import DEFAULT_SCENE, SCENE_TYPES, scene_class, scene_docs, scene_schemas
+from .scenes.common import MESH_KEYS, mesh_default_name
 from .schema import Key
 from .schema import nonneg as _nonneg
 from .schema import number as _f
@@ -124,8 +126,16 @@ SCHEMA: dict[str, dict] = {
         "type": Key("str", DEFAULT_SCENE, "-", "the scene (cfddem/scenes/): " + scene_docs(), choices=SCENE_TYPES),
         "walls": Key("tables", [], "-", "extra walls: [[geometry.walls]] with type = 'plane' (point, normal) or "
                      "'rectangle' (point = centre, normal, u_axis, half_extents = [a, b]) or 'cylinder' (the inside of a ring: "
-                     "point = centre, axis, radius, half_height, optional inside = false for the outer surface); "
-                     "optional contact keys: any key of [contact.particle_wall] (the contact law's), for this wall"),
+                     "point = centre, axis, radius, half_height, optional inside = false for the outer surface) or "
+                     "'mesh' (a triangle mesh from file = an STL or OBJ file, relative to the case folder; optional "
+                     "scale or units = 'm', 'cm', 'mm', 'um', 'in', 'ft'; rotate = [axis x, y, z, degrees] about the "
+                     "origin, then translate = [x, y, z] m; motion: velocity = [vx, vy, vz] m/s, angular_velocity = "
+                     "[wx, wy, wz] rad/s about center = [x, y, z] m (default: the centre of the mesh's bounds), "
+                     "schedule = [[time, true/false], ...] switches it on/off at those times, active = false starts it "
+                     "off; flip_normals = true when the triangles' normals point away from the particles; name: "
+                     "letters, digits, '_', '-' (default: the file's stem), used in the results.h5 series "
+                     "mesh_<name>_fx..tz); optional contact keys: any key of [contact.particle_wall] (the contact "
+                     "law's), for this wall"),
     },
     "exit": {
         "lost_margin": _pos(0.5, "m", "particles farther than this outside the walls' bounding box are removed as lost"),
@@ -447,8 +457,9 @@ def _suggest_choice(v: str, choices) -> str:
 # --------------------------------------------------------------------------------------------
 # consistency of the whole case
 # --------------------------------------------------------------------------------------------
-_WALL_KEYS = {"type", "point", "normal", "u_axis", "half_extents", "name", "axis", "radius", "half_height",
-              "inside"} | set(contact_keys())  # geometry.walls entries: geometry and the contact-law keys
+_ANALYTIC_WALL_KEYS = {"point", "normal", "u_axis", "half_extents", "axis", "radius", "half_height", "inside"}
+_WALL_KEYS = {"type", "name"} | _ANALYTIC_WALL_KEYS | set(MESH_KEYS) | set(contact_keys())  # geometry.walls
+# entries: geometry (analytic or mesh) and the contact-law keys
 _INITIAL_KEYS = {"pos", "vel", "omega", "radius"}
 
 
@@ -456,6 +467,56 @@ def _vec(key: str, v, n=3) -> list[float]:
     if not isinstance(v, list) or len(v) != n:
         raise CaseError(key, f"expected an array of {n} numbers, got {v!r}")
     return [_as_float(f"{key}[{i}]", x) for i, x in enumerate(v)]
+
+
+def _check_mesh_wall(key: str, w: dict, case_dir: Path) -> None:
+    """A ``type = "mesh"`` wall of geometry.walls: its keys, then its file read as a mesh."""
+    from .particles.mesh import UNITS
+    from .scenes.common import WallSpec, mesh_wall
+
+    for k in w:
+        if k in _ANALYTIC_WALL_KEYS:
+            raise CaseError(f"{key}.{k}", "not a key of a mesh wall (its geometry comes from file)")
+    if "file" not in w:
+        raise CaseError(f"{key}.file", "required for a mesh wall: an STL or OBJ file, relative to the case folder")
+    if not isinstance(w["file"], str) or not w["file"]:
+        raise CaseError(f"{key}.file", f"expected a file name, got {w['file']!r}")
+    f = case_dir / w["file"]
+    if not f.is_file():
+        raise CaseError(f"{key}.file", f"no such file: {f}")
+    name = w.get("name", mesh_default_name(w["file"]))
+    if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9_-]+", name):
+        raise CaseError(f"{key}.name", f"{name!r}: use letters, digits, '_' and '-' (it names the results.h5 series)")
+    if "scale" in w and not _as_float(f"{key}.scale", w["scale"]) > 0:
+        raise CaseError(f"{key}.scale", f"must be positive, got {w['scale']!r}")
+    if "units" in w and w["units"] not in UNITS:
+        raise CaseError(f"{key}.units", f"{w['units']!r} is not allowed: one of {', '.join(map(repr, UNITS))}")
+    if "scale" in w and "units" in w:
+        raise CaseError(f"{key}.scale", "give scale or units, not both")
+    if "rotate" in w:
+        rot = w["rotate"]
+        if not isinstance(rot, list) or len(rot) != 4:
+            raise CaseError(f"{key}.rotate", f"expected [axis x, y, z, angle in degrees], got {rot!r}")
+        rot = _vec(f"{key}.rotate", rot, 4)
+        if math.hypot(*rot[:3]) == 0:
+            raise CaseError(f"{key}.rotate", "the axis (first three numbers) must not be the zero vector")
+    for k in ("translate", "velocity", "angular_velocity", "center"):
+        if k in w:
+            _vec(f"{key}.{k}", w[k])
+    for k in ("active", "flip_normals"):
+        if k in w and not isinstance(w[k], bool):
+            raise CaseError(f"{key}.{k}", f"expected true or false, got {w[k]!r}")
+    if "schedule" in w:
+        sch = w["schedule"]
+        if not isinstance(sch, list) or not all(isinstance(x, list) and len(x) == 2 and isinstance(x[1], bool)
+                                                and not isinstance(x[0], bool) for x in sch):
+            raise CaseError(f"{key}.schedule", f"expected [[time, true or false], ...], got {sch!r}")
+        for j, (t, _) in enumerate(sch):
+            if not _as_float(f"{key}.schedule[{j}]", t) >= 0:
+                raise CaseError(f"{key}.schedule[{j}]", f"switch time must be >= 0, got {t!r}")
+    m = {k: w[k] for k in MESH_KEYS if k in w}
+    m.update(file=str(f), key=key)
+    mesh_wall(WallSpec(name, "mesh", None, None, mesh=m))  # reads it: not a mesh, no triangles, ...
 
 
 def _default_of(spec):
@@ -474,14 +535,28 @@ def _check_consistency(r: dict, case_dir: Path) -> None:
             names = " or ".join(f"'{o}'" for o in sorted(owners))
             raise CaseError(f"{sec}.{k}", f"needs geometry.type = {names} (this case has '{geo['type']}')")
     scene.check(r, case_dir)
+    seen = {}
     for i, w in enumerate(geo["walls"]):
         key = f"geometry.walls[{i}]"
+        name = w.get("name", mesh_default_name(w["file"]) if w.get("type") == "mesh" and isinstance(w.get("file"), str)
+                      else f"wall{i}")
+        if isinstance(name, str) and name in seen:
+            raise CaseError(f"{key}.name", f"{name!r} is already the name of geometry.walls[{seen[name]}]: "
+                                           "give each wall its own name")
+        seen[name] = i
         for k in w:
             if k not in _WALL_KEYS:
                 raise CaseError(f"{key}.{k}", "unknown key" + _suggest(k, _WALL_KEYS))
         wt = w.get("type")
-        if wt not in ("plane", "rectangle", "cylinder"):
-            raise CaseError(f"{key}.type", f"{wt!r} is not allowed: one of 'plane', 'rectangle', 'cylinder'")
+        if wt not in ("plane", "rectangle", "cylinder", "mesh"):
+            raise CaseError(f"{key}.type", f"{wt!r} is not allowed: one of 'plane', 'rectangle', 'cylinder', 'mesh'")
+        if wt == "mesh":
+            _check_mesh_wall(key, w, case_dir)
+            check_contact_values(key, {k: _as_float(f"{key}.{k}", w[k]) for k in contact_keys() if k in w})
+            continue
+        for k in w:
+            if k in MESH_KEYS:
+                raise CaseError(f"{key}.{k}", "only for a mesh wall (type = 'mesh')")
         _vec(f"{key}.point", w.get("point"))
         nkey = "axis" if wt == "cylinder" else "normal"
         nrm = _vec(f"{key}.{nkey}", w.get(nkey))

@@ -29,7 +29,7 @@ from .config import Case
 from .errors import CaseError, RunError
 from .particles.contact import ContactLaw, contact_law
 from .scenes import scene_of
-from .scenes.common import frame_omega, gravity_vector, initial_particles, wall_specs, walls_bounding_box
+from .scenes.common import frame_omega, gravity_vector, initial_particles, mesh_wall, wall_specs, walls_bounding_box
 
 RUN_MARKER = "run.json"  # written by every run: how we recognise our own run folders
 
@@ -388,7 +388,8 @@ class Simulation:
                 self._write_scene_measurements(res)
             if pv is not None and (sch["vtk"].due(t, dt) or (final and last["vtk"] != sys_.step_count)):
                 pv.write(t, sys_.pos, sys_.radius, vel=sys_.vel, omega=sys_.omega, ids=sys_.ids,
-                         gas=self.gas.vtk_fields() if self.gas is not None else None)
+                         gas=self.gas.vtk_fields() if self.gas is not None else None,
+                         meshes=sys_.mesh_surfaces() if sys_.nm else None)
                 sch["vtk"].advance(t, dt)
                 last["vtk"] = sys_.step_count
             res.flush()
@@ -535,7 +536,9 @@ class Simulation:
         cur = pos[known]
         old = ppos[order][k[known]]
         r = rad[known]
-        for iw, w in enumerate(self.walls):
+        # the engine's analytic walls in order (mesh walls are not checked: particles see only
+        # their front side and the engine keeps them apart, ParticleSystem.meshes)
+        for iw, w in enumerate(w for w in self.walls if w.kind != "mesh"):
             if not sys_.wall_active(iw):  # a gate that is open
                 continue
             n = w.normal / np.linalg.norm(w.normal)
@@ -584,6 +587,10 @@ class Simulation:
                    mean_velocity_z=float(np.mean(s.vel[:, 2])) if s.n else 0.0)
         if self.gas is not None:
             row.update(self.gas.series_row())
+        if s.nm:  # force and torque (about each mesh's centre) the particles exert on each mesh wall
+            for m, f, tq in zip(s.meshes, s.mesh_forces(), s.mesh_torques()):
+                row.update({f"mesh_{m.name}_{c}": float(v) for c, v in zip(("fx", "fy", "fz"), f)})
+                row.update({f"mesh_{m.name}_{c}": float(v) for c, v in zip(("tx", "ty", "tz"), tq)})
         row.update({k: float(v) for k, v in self.scene.series().items()})
         return row
 
@@ -706,6 +713,8 @@ def engine_wall(w, model: str | None = None):
     from .particles.walls import AnnulusWall, CylinderWall, PlaneWall, RectangleWall
 
     law = contact_law(w.params, model)
+    if w.kind == "mesh":
+        return mesh_wall(w, law)
     if w.kind == "plane":
         return PlaneWall(contact=law, name=w.name, point=tuple(w.point), normal=tuple(w.normal))
     if w.kind == "annulus":  # half_extents = (inner radius, outer radius)
@@ -847,6 +856,9 @@ def describe_case(case: Case) -> list[str]:
                  + (f"{case.frame.rpm:g} rpm, Omega = ({om[0]:.4g}, {om[1]:.4g}, {om[2]:.4g}) rad/s about "
                     f"{tuple(case.frame.axis_point)}" if case.frame.rpm else "none (inertial frame, no rotation terms)"))
     lines += scene_of(case).describe(case)
+    for w in wall_specs(case):
+        if w.kind == "mesh":
+            lines += mesh_wall(w).check_lines(case.particles.diameter if particles else None)
     if particles:
         n = expected_particles(case)
         lines.append(f"expected particles: about {n:,}; memory about {memory_estimate(n) / 2 ** 20:.0f} MiB")

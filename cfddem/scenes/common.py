@@ -6,6 +6,7 @@ used by the :class:`~cfddem.simulation.Simulation`, ``cfddem check`` and the sce
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,13 +36,16 @@ class WallSpec:
     """A wall as the case describes it (converted to the engine's wall objects by the caller)."""
 
     name: str
-    kind: str  # "plane" | "rectangle" | "cylinder" (normal = axis, half_extents = (radius, half_height))
+    kind: str  # "plane" | "rectangle" | "cylinder" (normal = axis, half_extents = (radius, half_height)) | "mesh"
     point: np.ndarray
     normal: np.ndarray
     u_axis: np.ndarray | None = None
     half_extents: tuple[float, float] | None = None
     params: dict | None = None  # contact keys of the law (cfddem.particles.contact), e.g. k_n, e_n, e_t, mu, mu_r
     inside: bool = True  # cylinder: particles inside the ring
+    #: a mesh wall: its [[geometry.walls]] keys (``file`` resolved against the case folder) and
+    #: ``key`` (``geometry.walls[i]``, for error messages); :func:`mesh_wall` reads it
+    mesh: dict | None = None
 
     def quads(self, size: float = 1.0, segments: int = 32) -> list[np.ndarray]:
         """Quadrilaterals for drawing: the corners of a plane/rectangle, or a cylinder's band of
@@ -91,6 +95,13 @@ def wall_specs(case) -> list[WallSpec]:
     walls: list[WallSpec] = list(scene_of(case).wall_specs(case))
     for i, w in enumerate(geo.walls):
         params = {k: float(w[k]) for k in contact_keys() if k in w}
+        if w["type"] == "mesh":
+            m = {k: w[k] for k in MESH_KEYS if k in w}
+            m["file"] = str(case.path / w["file"])
+            m["key"] = f"geometry.walls[{i}]"
+            walls.append(WallSpec(w.get("name", mesh_default_name(w["file"])), "mesh", np.zeros(3), np.zeros(3),
+                                  params=params, mesh=m))
+            continue
         if w["type"] == "cylinder":
             walls.append(WallSpec(w.get("name", f"wall{i}"), "cylinder", np.array(w["point"], float),
                                   np.array(w["axis"], float), None,
@@ -114,12 +125,63 @@ def wall_specs(case) -> list[WallSpec]:
     return walls
 
 
+#: the keys of a ``type = "mesh"`` wall besides ``type``, ``name`` and the contact keys
+MESH_KEYS = ("file", "scale", "units", "rotate", "translate", "velocity", "angular_velocity", "center",
+             "schedule", "active", "flip_normals")
+
+
+def mesh_default_name(file: str) -> str:
+    """A mesh wall's name when the case gives none: the file's stem, characters other than
+    letters, digits, '_' and '-' replaced by '_'."""
+    from pathlib import PurePath
+
+    return re.sub(r"[^A-Za-z0-9_-]", "_", PurePath(file).stem) or "mesh"
+
+
+def mesh_wall(w: WallSpec, contact=None):
+    """The :class:`~cfddem.particles.mesh.MeshWall` of a ``kind = "mesh"`` WallSpec, read from its
+    file (``contact``: its contact law; None to check the geometry only).  Errors are one-line
+    :class:`CaseError` naming ``geometry.walls[i].<key>``."""
+    from ..particles.mesh import MeshWall
+
+    m = w.mesh
+    rot = m.get("rotate")
+    kw = {k: m[k] for k in ("velocity", "angular_velocity", "center", "active", "flip_normals") if k in m}
+    try:
+        return MeshWall.from_file(m["file"], contact, scale=m.get("scale"), units=m.get("units"),
+                                  rotate=None if rot is None else (rot[:3], rot[3]),
+                                  translate=m.get("translate", (0.0, 0.0, 0.0)), name=w.name,
+                                  schedule=[tuple(x) for x in m.get("schedule", ())], **kw)
+    except CaseError as e:  # MeshWall names its keys "mesh 'name'.<key>": name the case's key
+        sub = e.key.rsplit(".", 1)[1] if e.key and e.key.startswith("mesh ") and "." in e.key else None
+        raise CaseError(f"{m['key']}.{sub}" if sub else m["key"], e.reason) from None
+
+
+def mesh_box(w: WallSpec, mesh=None) -> np.ndarray | None:
+    """(2, 3) box a mesh wall stays within: its bounds, or for a rotating mesh the box of the
+    sphere about its centre holding all vertices; None for a translating mesh (no fixed box)."""
+    m = mesh if mesh is not None else mesh_wall(w)
+    if np.any(m.velocity != 0.0):
+        return None
+    if np.any(m.angular_velocity != 0.0):
+        r = float(np.max(np.linalg.norm(m.vertices - m.center, axis=1)))
+        return np.array([m.center - r, m.center + r])
+    return np.array(m.bounds())
+
+
 def walls_bounding_box(walls: list[WallSpec], case) -> tuple[np.ndarray, np.ndarray]:
     """Bounding box of the scene (for lost-particle detection): rectangles' corners, cylinders'
-    boxes and the scene's own bounds."""
+    boxes, meshes' boxes (:func:`mesh_box`) and the scene's own bounds; unbounded when a mesh
+    translates."""
     from . import scene_of
 
     pts = [w.corners() for w in walls if w.kind == "rectangle"] + [w.box() for w in walls if w.kind == "cylinder"]
+    for w in walls:
+        if w.kind == "mesh":
+            b = mesh_box(w)
+            if b is None:
+                return np.full(3, -np.inf), np.full(3, np.inf)
+            pts.append(b)
     extra = scene_of(case).bounds(case)
     if extra is not None:
         pts.append(np.asarray(extra, float))
