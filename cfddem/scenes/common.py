@@ -49,7 +49,9 @@ class WallSpec:
 
     def quads(self, size: float = 1.0, segments: int = 32) -> list[np.ndarray]:
         """Quadrilaterals for drawing: the corners of a plane/rectangle, or a cylinder's band of
-        ``segments`` quads."""
+        ``segments`` quads; none for a mesh (ParaView gets meshes as triangles)."""
+        if self.kind == "mesh":
+            return []
         if self.kind != "cylinder":
             return [self.corners(size)]
         a = self.normal / np.linalg.norm(self.normal)
