@@ -871,14 +871,14 @@ def describe_case(case: Case) -> list[str]:
         from .coupling.exchange import coupling_diagnostics
 
         d = max(case.particles.diameter, case.particles.diameter_max) if particles else None
-        lines += ["gas: " + x for x in coupling_diagnostics(case, scene_of(case).gas_domain(case), d)]
-        n_rec = recommended_coupling_interval(case)
+        domain = scene_of(case).gas_domain(case)
+        lines += ["gas: " + x for x in coupling_diagnostics(case, domain, d)]
+        n_rec = recommended_coupling_interval(case, domain=domain)
         lines.append(f"gas: recommended coupling interval {n_rec} particle steps (gas step {n_rec * case.time.dt:.3g} s: "
                      f"gas CFL <= 0.3 at the fastest expected flow); the case uses {case.gas.coupling_interval}")
         from .stability import courant_limit
 
-        h = min(case.geometry.width / case.gas.cells[0], case.gas.height / case.gas.cells[1],
-                case.geometry.length / case.gas.cells[2])
+        h = min(domain.grid.spacing)
         re_h = case.gas.density * max(expected_max_speed(case), 1e-9) * h / case.gas.viscosity
         c_ok, c_bad = courant_limit(re_h)
         lines.append(f"gas: at the cell Reynolds number {re_h:.3g} (fastest expected flow, smallest cell) the Courant "
@@ -895,11 +895,12 @@ def expected_max_speed(case: Case) -> float:
     return scene_of(case).speed_scale(case)
 
 
-def recommended_coupling_interval(case: Case, cfl: float = 0.3) -> int:
+def recommended_coupling_interval(case: Case, cfl: float = 0.3, domain=None) -> int:
     """Largest number of particle steps per gas step keeping the gas CFL number (sum over the
     axes of u dt_g / h) at or below ``cfl`` for the expected flow speed, and the gas step below
-    the rotating frame's explicit Coriolis limit 0.05/|Omega|."""
-    h = scene_of(case).gas_domain(case).grid.spacing
+    the rotating frame's explicit Coriolis limit 0.05/|Omega|.  ``domain``: the scene's gas
+    domain if already built."""
+    h = (domain or scene_of(case).gas_domain(case)).grid.spacing
     u = max(expected_max_speed(case), 1e-9)
     dtg = cfl / sum(u / hh for hh in h)
     om = float(np.linalg.norm(frame_omega(case)))

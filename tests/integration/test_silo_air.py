@@ -58,3 +58,22 @@ def test_silo_air_check_and_hopper_refused():
     assert "slot outlet p = 0.353 Pa over 2 cells across" in p.stdout
     with pytest.raises(CaseError, match="gas.enabled.*flat-bottom"):
         load_case(CASE, overrides=["silo.hopper_angle_deg=60", "silo.height=0"])
+
+
+def test_check_uses_the_silo_gas_grid():
+    """cfddem check's gas numbers come from the silo's own gas domain (3 mm cells), not from the
+    chute's geometry keys: the cell Reynolds number of the Courant line and the recommended
+    coupling interval."""
+    import re
+
+    from cfddem.scenes import scene_of
+    from cfddem.simulation import describe_case, expected_max_speed, recommended_coupling_interval
+
+    case = load_case(CASE)
+    dom = scene_of(case).gas_domain(case)
+    h = min(dom.grid.spacing)
+    assert h == pytest.approx(0.003, rel=1e-12)
+    re_h = case.gas.density * expected_max_speed(case) * h / case.gas.viscosity
+    line = next(x for x in describe_case(case) if "cell Reynolds number" in x)
+    assert float(re.search(r"cell Reynolds number ([0-9.e+]+)", line).group(1)) == pytest.approx(re_h, rel=5e-3)
+    assert recommended_coupling_interval(case, domain=dom) == recommended_coupling_interval(case)
