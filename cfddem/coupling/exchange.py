@@ -376,7 +376,6 @@ class CoupledGas:
         self.log = log if log is not None else logging.getLogger("cfddem")
         self.phase = 0
         self.n_couplings = 0
-        self._low_reports = 0
         self._last = {"gas_pressure_iterations": 0.0, "gas_pressure_residual": 0.0, "gas_cfl": 0.0,
                       "min_porosity": 1.0, "gas_max_divergence": 0.0, "drag_power": 0.0,
                       "n_low_porosity_cells": 0.0, "n_clipped_cells": 0.0, "max_drag_force": 0.0}
@@ -753,7 +752,6 @@ class CoupledGas:
         """Count a gas step with cells below ``eps_min``: no log line per step (dense packing in
         single cells is expected, at a feed lattice or a pile against a wall), the run's counts
         go into the end-of-run summary (:meth:`run_summary`)."""
-        self._low_reports += 1
         st = self._run_stats
         st["low_steps"] += 1
         st["low_cells_max"] = max(st["low_cells_max"], int(por.n_low))
@@ -816,7 +814,6 @@ class CoupledGas:
         return {"gas": st, "phase": np.int64(self.phase), "n_couplings": np.int64(self.n_couplings),
                 "ext_force": np.array(self.system.ext_force), "ext_ids": np.array(self.system.ids),
                 "avg_sum": self._avg_sum.copy(), "avg_time": float(self._avg_time),
-                "low_reports": np.int64(self._low_reports),
                 "last": {k: float(v) for k, v in self._last.items()}}
 
     def set_state(self, d: dict) -> None:
@@ -825,7 +822,6 @@ class CoupledGas:
         self.gas.set_state(gs)
         self.phase = int(d["phase"])
         self.n_couplings = int(d["n_couplings"])
-        self._low_reports = int(d.get("low_reports", 0))
         self._avg_sum[...] = np.asarray(d["avg_sum"], float)
         self._avg_time = float(d["avg_time"])
         self._last.update({k: float(v) for k, v in d.get("last", {}).items()})
