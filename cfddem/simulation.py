@@ -163,11 +163,13 @@ class Simulation:
                                       omega=init["omega"])
         self.inlet = self.scene.make_inlet()
         self.measure = self.scene.make_measurements()
+        self.budget = self.scene.make_budget()  # the particles' momentum budget, sampled with measure
         self.gas = None
         if case.gas.enabled:
             from .coupling.exchange import build_coupled_gas
 
             self.gas = build_coupled_gas(case, self.system, cls.gas_domain(case), self.log)
+            self.gas.force_sink = self.budget
         o = case.output
         self.schedules = {
             "series": Schedule(o.series_interval),
@@ -193,6 +195,8 @@ class Simulation:
             st["inlet"] = self.inlet.get_state()
         if self.measure is not None:
             st["measure"] = self.measure.get_state()
+        if self.budget is not None:
+            st["budget"] = self.budget.get_state()
         if self.gas is not None:
             st["gas"] = self.gas.get_state()
         scene_state = self.scene.get_state()
@@ -211,6 +215,8 @@ class Simulation:
             self.inlet.set_state(st["inlet"])
         if self.measure is not None and "measure" in st:
             self.measure.set_state(st["measure"])
+        if self.budget is not None and "budget" in st:
+            self.budget.set_state(st["budget"])
         if self.gas is not None:
             self.gas.set_state(st["gas"])
         if "scene" in st:
@@ -385,6 +391,7 @@ class Simulation:
                 if self.measure is not None and self.measure.n_samples:
                     # the averages so far, so that a killed run keeps them
                     res.write_measurements(self.measure.group, self.measure.results(), self.measure.attrs())
+                self._write_budget(res)
                 self._write_scene_measurements(res)
             if pv is not None and (sch["vtk"].due(t, dt) or (final and last["vtk"] != sys_.step_count)):
                 pv.write(t, sys_.pos, sys_.radius, vel=sys_.vel, omega=sys_.omega, ids=sys_.ids,
@@ -429,6 +436,8 @@ class Simulation:
                 if self.measure is not None and sch["measure"].due(sys_.time, dt):
                     t0 = _time.perf_counter()
                     self.measure.measure(sys_.time, sys_.pos, sys_.vel, sys_.radius)
+                    if self.budget is not None:
+                        self.budget.sample(sys_.time, sys_, self.gas)
                     sch["measure"].advance(sys_.time, dt)
                     self.timings["measurements"] += _time.perf_counter() - t0
                 outputs()
@@ -594,6 +603,10 @@ class Simulation:
         row.update({k: float(v) for k, v in self.scene.series().items()})
         return row
 
+    def _write_budget(self, res) -> None:
+        if self.budget is not None and self.budget.n_samples:
+            res.write_measurements(self.budget.group, self.budget.results(), self.budget.attrs())
+
     def _write_scene_measurements(self, res) -> None:
         m = self.scene.measurements()
         if m is not None:
@@ -608,6 +621,10 @@ class Simulation:
                 res.write_measurements(self.measure.group, self.measure.results(), self.measure.attrs())
             except Exception as e:  # keep what is written; say why
                 self.log.error("could not store the measurements: %s", e)
+        try:
+            self._write_budget(res)
+        except Exception as e:
+            self.log.error("could not store the momentum budget: %s", e)
         try:
             self._write_scene_measurements(res)
         except Exception as e:

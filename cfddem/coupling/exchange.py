@@ -376,6 +376,10 @@ class CoupledGas:
         self.log = log if log is not None else logging.getLogger("cfddem")
         self.phase = 0
         self.n_couplings = 0
+        #: an object with ``wants_gas(t)`` and ``add_gas(t, dt_g, pos, held, drag, pressure)``
+        #: (a :class:`cfddem.measure.budget.MomentumBudget`): given the per-particle drag and
+        #: pressure force (n, 3) of every coupling step it wants, each applied for dt_g
+        self.force_sink = None
         self._last = {"gas_pressure_iterations": 0.0, "gas_pressure_residual": 0.0, "gas_cfl": 0.0,
                       "min_porosity": 1.0, "gas_max_divergence": 0.0, "drag_power": 0.0,
                       "n_low_porosity_cells": 0.0, "n_clipped_cells": 0.0, "max_drag_force": 0.0}
@@ -554,9 +558,14 @@ class CoupledGas:
         # --- 4.-6. forces on the particles -------------------------------------------------
         if n:
             G, Gb, solid = self._pressure_fields()
-            # writes system.ext_force = fd + fp + fb directly (a contiguous view of its store)
+            # writes system.ext_force = fd + fp + fb directly (a contiguous view of its store);
+            # a momentum budget in its window also gets the per-particle split (force_sink)
+            sink = self.force_sink
+            keep = sink is not None and sink.wants_gas(sys_.time)
             f = plan.apply_forces(gas.u.interior, gas.v.interior, gas.w.interior, vel, Keff, vol, G, Gb,
-                                  sys_.ext_force, boundary_used=self._has_boundary)
+                                  sys_.ext_force, boundary_used=self._has_boundary, store=keep)
+            if keep:
+                sink.add_gas(sys_.time, dtg, pos, sys_.held, f["fd_each"], f["fp_each"] + f["fb_each"])
             self._last["drag_power"] = f["power"]
             self._last["max_drag_force"] = f["max_magnitude"]
             # both sides of the exchange (momentum received), for conservation checks: the

@@ -1167,7 +1167,8 @@ class MappingPlan:
         res["total"] = total
         return res
 
-    def apply_forces(self, u, v, w, vel, keff, volume, centre, boundary, out, boundary_used=None) -> dict:
+    def apply_forces(self, u, v, w, vel, keff, volume, centre, boundary, out, boundary_used=None,
+                     store: bool = False) -> dict:
         """:meth:`particle_forces` for the coupling step: writes only ``total`` into ``out``
         (a C-contiguous float64 (n, 3) array, e.g. ``system.ext_force``) and returns the sums
         ``fd, fp, fb`` ((3,) each, sum over the particles), ``power`` (sum of fd . (u_a - v_a))
@@ -1175,14 +1176,19 @@ class MappingPlan:
         particles and then over the blocks, so they are the same for any thread count (they
         differ from a plain sum in round-off only).  ``centre`` and ``boundary`` may also be
         stacked (nx, ny, nz, 3) arrays (no copy); ``boundary_used`` then gives the components
-        of ``boundary`` that are used (default all)."""
+        of ``boundary`` that are used (default all).  With ``store`` the dict also holds the
+        per-particle ``fd_each``, ``fp_each``, ``fb_each`` ((n, 3) each, copies; the same
+        arithmetic, so ``out`` is the same)."""
         if (not isinstance(out, np.ndarray) or out.shape != (self.n, 3) or out.dtype != np.float64
                 or not out.flags.c_contiguous or not out.flags.writeable):
             raise CaseError("coupling.values", f"out must be a writable C-contiguous float64 ({self.n}, 3) array")
-        _, part = self._forces(u, v, w, vel, keff, volume, centre, boundary, out, False, boundary_used)
+        res, part = self._forces(u, v, w, vel, keff, volume, centre, boundary, out, bool(store), boundary_used)
         tot = part[:, :10].sum(axis=0)  # numpy, in one process: thread-independent
-        return {"fd": tot[0:3].copy(), "fp": tot[3:6].copy(), "fb": tot[6:9].copy(), "power": float(tot[9]),
-                "max_magnitude": float(part[:, 10].max()) if part.shape[0] else 0.0}
+        d = {"fd": tot[0:3].copy(), "fp": tot[3:6].copy(), "fb": tot[6:9].copy(), "power": float(tot[9]),
+             "max_magnitude": float(part[:, 10].max()) if part.shape[0] else 0.0}
+        if store:
+            d.update(fd_each=res["fd"].copy(), fp_each=res["fp"].copy(), fb_each=res["fb"].copy())
+        return d
 
 
 def _check_location(location):

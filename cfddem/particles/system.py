@@ -618,6 +618,50 @@ class ParticleSystem:
         it.reduce_walls(self.n, self.nw, self._won, self._wfw, self._wtw, self._fw, self._tw)
         return self._tw[: self.nw].copy()
 
+    def force_breakdown(self) -> dict:
+        """Each particle's force at the last evaluation, split by origin: a dict of (n, 3)
+        arrays (force ON the particle, in this frame)::
+
+            gravity       m g
+            centrifugal   -m Omega x (Omega x (r - axis_point))
+            coriolis      -2 m Omega x v (at the current velocity; the integrator applies it as
+                          an exact rotation of v over the half kicks, of which this is the rate)
+            walls         {name: force} of each analytic wall (zero where not touching)
+            meshes        {name: force} of each mesh wall
+            contacts      particle-particle contacts: the engine's summed force minus the walls,
+                          meshes, gravity and centrifugal force above (summed over a group of
+                          particles, the pairs inside the group cancel: what is left is the force
+                          across the group's boundary)
+            external      ``ext_force`` (e.g. the gas's drag and pressure forces)
+
+        ``held`` (n,) bool marks particles moving at a set velocity (a feed): their forces are
+        computed but not applied.  Clump members carry their own sphere's forces.  Valid after
+        a step (the forces belong to the current positions)."""
+        if self._forces_stale or self._need_rebuild:
+            st = self._refresh()
+            if st is not None:
+                raise RuntimeError(st.message)
+        n = self.n
+        m = self.mass[:, None]
+        g = m * self.gravity[None, :]
+        om = self.frame_omega
+        r = self.pos - self.axis_point[None, :]
+        cen = -m * np.cross(om[None, :], np.cross(om[None, :], r))
+        cor = -2.0 * m * np.cross(om[None, :], self.vel)
+        walls = {w.name or f"wall{k}": -self._wfw[:n, k, :].copy() for k, w in enumerate(self.walls)}
+        meshes = {}
+        if self.nm:
+            has = (self._mstart[1: n + 1] > self._mstart[:n])[:, None]
+            for k, w in enumerate(self.meshes):
+                on = self._ms_mesh[:n] == k
+                meshes[w.name or f"mesh{k}"] = np.where(has, -np.einsum("ij,ijc->ic", on.astype(float),
+                                                                        self._ms_fw[:n]), 0.0)
+        contacts = self.force - g - cen
+        for f in list(walls.values()) + list(meshes.values()):
+            contacts = contacts - f
+        return dict(gravity=g, centrifugal=cen, coriolis=cor, walls=walls, meshes=meshes, contacts=contacts,
+                    external=self.ext_force.copy(), held=self.held)
+
     # ------------------------------------------------------------------ held particles
     @property
     def held(self) -> np.ndarray:

@@ -65,6 +65,9 @@ class Run:
         _, self.config = read_config(h5)
         self.chute = self.meas.get("chute", {})
         self.silo = self.meas.get("silo", {})
+        self.budget = self.meas.get("momentum_budget", {})
+        if int(np.asarray(self.budget.get("n_samples", 0))) == 0:
+            self.budget = {}
         if int(np.asarray(self.chute.get("n_samples", 0))) > 0:
             self.kind = "chute"
         elif self.silo and "mass_flow_rate" in self.meas:
@@ -414,18 +417,142 @@ def compare_runs(a: str | Path, b: str | Path, out: str | Path, labels=(None, No
     }
     summary["headline"] = (f"mean streamwise velocity over the last {END_LENGTH:g} m {va:.4f} m/s ({ra.label}), "
                            f"{vb:.4f} m/s ({rb.label}) ({100 * summary['relative_difference_end']:+.2f} %)")
-    (out / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=True))
     md = [f"# {ra.label} against {rb.label}", "",
           f"- A: `{ra.folder}` ({ra.label}, {ra.rpm:g} rpm); B: `{rb.folder}` ({rb.label}, {rb.rpm:g} rpm)",
           f"- mean streamwise particle velocity over the last {END_LENGTH:g} m: A {va:.4f} m/s, "
           f"B {vb:.4f} m/s, relative difference (B - A)/A = {100 * summary['relative_difference_end']:+.2f} %"]
-    _write_report(md, runs, figs, out, summary)
+    tail = []
+    if ra.budget and rb.budget:
+        tail = _budget_section(runs, out, summary)
+        figs["momentum_budget.png"] = ("Streamwise momentum budget of the particles", lambda runs, path: None)
+    (out / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=True))
+    _write_report(md, runs, figs, out, summary, tail)
     return summary
 
 
-def _write_report(md: list, runs, figs: dict, out: Path, summary: dict) -> None:
-    """The wall times, the gas solver lines, the cost table and the figures after the lines
-    ``md``; report.md and the self-contained report.html."""
+# ------------------------------------------------------------------ momentum budget
+BUDGET_ROWS = (("gravity", "gravity"), ("walls", "walls (all)"), ("contacts", "particle contacts across bin faces"),
+               ("drag", "gas drag"), ("pressure", "gas pressure gradient"), ("coriolis", "Coriolis"),
+               ("centrifugal", "centrifugal"), ("flux", "momentum flux in - out"), ("storage", "storage d<P>/dt"),
+               ("residual", "residual"))
+
+
+def _budget_totals(b) -> dict:
+    """Whole-window sums over the bins of each term, with the block errors added in quadrature
+    over the bins (an upper bound when bins are correlated: they share particles' contacts)."""
+    out = {}
+    for k, _ in BUDGET_ROWS:
+        v = np.asarray(b.get(k, np.zeros(1)), float)
+        e = np.asarray(b.get(f"{k}_err", np.zeros_like(v)), float)
+        out[k] = (float(v.sum()), float(np.sqrt(np.nansum(e**2))))
+    for name in sorted(k for k in b if k.startswith("wall_") and not k.endswith("_err")):
+        v = np.asarray(b[name], float)
+        e = np.asarray(b.get(f"{name}_err", np.zeros_like(v)), float)
+        out[name] = (float(v.sum()), float(np.sqrt(np.nansum(e**2))))
+    return out
+
+
+def _gas_run(runs):
+    """(the run with gas, the run without), or None unless exactly one has gas."""
+    has = [bool(r.config.get("gas", {}).get("enabled", False)) for r in runs]
+    if has.count(True) != 1:
+        return None
+    return (runs[0], runs[1]) if has[0] else (runs[1], runs[0])
+
+
+def budget_sentence(tot_gas: dict, tot_free: dict, dv_rel: float) -> str:
+    """One plain sentence: which terms carry the gas's effect on the particles, with sizes
+    (``tot_*``: :func:`_budget_totals` of the run with and without gas; ``dv_rel`` the relative
+    change of the end velocity)."""
+    g = tot_gas["gravity"][0]
+    drag, pres = tot_gas["drag"][0], tot_gas["pressure"][0]
+    direct = drag + pres
+    parts = [f"the gas acts on the particles in the chute through drag ({drag * 1e3:+.3g} mN, "
+             f"{100 * drag / g:+.2g} % of the streamwise gravity {g * 1e3:.4g} mN) and the pressure gradient "
+             f"({pres * 1e3:+.3g} mN, {100 * pres / g:+.2g} %)"]
+    # indirect: terms that moved by more than twice their combined error
+    moved = []
+    for k, name in BUDGET_ROWS:
+        if k in ("drag", "pressure", "residual", "gravity"):
+            continue
+        (a, ea), (b, eb) = tot_gas[k], tot_free[k]
+        if abs(a - b) > 2.0 * math.hypot(ea, eb) and abs(a - b) > 1e-12:
+            moved.append(f"{name} {1e3 * (a - b):+.3g} mN")
+    txt = "With gas, " + parts[0]
+    txt += (f"; together {100 * direct / g:+.2g} % of gravity, and the end velocity changes by {100 * dv_rel:+.2f} %. ")
+    if moved:
+        txt += "Terms that differ from the gas-free run by more than twice their error: " + ", ".join(moved) + "."
+    else:
+        txt += ("No other term differs from the gas-free run by more than twice its error: the flow adjusts to the gas's "
+                "force within the noise of the particle terms.")
+    return txt
+
+
+def _budget_section(runs, out: Path, summary: dict) -> list[str]:
+    """The budget table (terms summed over the bins, both runs), its figure, the sentence,
+    and ``drag_force_total`` / ``budget_residual_relative`` in the summary."""
+    ra, rb = runs
+    tots = [_budget_totals(r.budget) for r in runs]
+    md = ["## Streamwise momentum budget of the particles", "",
+          f"Sums over the budget bins (z = {ra.budget['edges'][0]:.3g} to {ra.budget['edges'][-1]:.3g} m), "
+          "time-averaged over the measurement window, force on the particles along the chute in mN; "
+          "errors: block averages (10 blocks), added over the bins.", "",
+          "| term | " + " | ".join(r.label for r in runs) + " | B - A |", "|---|---|---|---|"]
+    names = [k for k, _ in BUDGET_ROWS] + sorted({k for t in tots for k in t if k.startswith("wall_")})
+    label = dict(BUDGET_ROWS)
+    for k in names:
+        (a, ea), (b, eb) = tots[0].get(k, (math.nan, math.nan)), tots[1].get(k, (math.nan, math.nan))
+        nm = label.get(k, f"wall '{k[5:]}'")
+        md.append(f"| {nm} | {1e3 * a:.4g} ± {1e3 * ea:.2g} | {1e3 * b:.4g} ± {1e3 * eb:.2g} | {1e3 * (b - a):+.3g} |")
+    md.append("")
+    pair = _gas_run(runs)
+    if pair is not None:
+        rg, rf = pair
+        tg, tf = (tots[0], tots[1]) if rg is ra else (tots[1], tots[0])
+        vg, vf = rg.velocity_end(), rf.velocity_end()
+        sentence = budget_sentence(tg, tf, (vg - vf) / vf if vf else math.nan)
+        md += [sentence, ""]
+        summary["budget_sentence"] = sentence
+        summary["drag_force_total"] = float(rg.budget.get("drag_all", tg["drag"][0]))
+        summary["pressure_force_total"] = float(rg.budget.get("pressure_all", tg["pressure"][0]))
+        summary["budget_residual_relative"] = abs(tg["residual"][0]) / abs(tg["gravity"][0]) if tg["gravity"][0] else math.nan
+    else:
+        summary["budget_residual_relative"] = abs(tots[0]["residual"][0]) / abs(tots[0]["gravity"][0]) \
+            if tots[0]["gravity"][0] else math.nan
+    _fig_budget(runs, out / "momentum_budget.png")
+    return md
+
+
+def _fig_budget(runs, path):
+    """Each term per bin along the chute (both runs: solid A, dashed B), with error bars."""
+    plt = _mpl()
+    fig, ax = plt.subplots(figsize=(8, 4.8))
+    colours = dict(zip([k for k, _ in BUDGET_ROWS], plt.rcParams["axes.prop_cycle"].by_key()["color"] * 2))
+    for r, ls in zip(runs, ("-", "--")):
+        b = r.budget
+        z = np.asarray(b["z"])
+        for k, name in BUDGET_ROWS:
+            if k == "storage":
+                continue
+            v = 1e3 * np.asarray(b[k])
+            e = 1e3 * np.asarray(b.get(f"{k}_err", np.zeros_like(v)))
+            ax.errorbar(z, v, yerr=e, ls=ls, color=colours[k], marker="o" if k == "residual" else None, ms=3,
+                        capsize=2, lw=2.2 if k == "residual" else 1.3,
+                        label=f"{name} ({r.label})" if r is runs[0] or k in ("drag", "pressure") else None)
+    ax.axhline(0.0, color="0.5", lw=0.8)
+    ax.set_xlabel("z along the chute (bin centre) [m]")
+    ax.set_ylabel("streamwise force on the bin's particles [mN]")
+    ax.set_title(f"solid: {runs[0].label}, dashed: {runs[1].label}", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, ncol=2, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def _write_report(md: list, runs, figs: dict, out: Path, summary: dict, tail=()) -> None:
+    """The wall times, the gas solver lines, the cost table, the lines ``tail`` and the figures
+    after the lines ``md``; report.md and the self-contained report.html."""
     ra, rb = runs
     md.append(f"- wall time: A {ra.wall_time:.1f} s, B {rb.wall_time:.1f} s, ratio B/A = {summary['wall_time_ratio']:.3f}")
     md += [f"- {line}" for line in (ra.gas_solver_line(), rb.gas_solver_line()) if line]
@@ -435,36 +562,40 @@ def _write_report(md: list, runs, figs: dict, out: Path, summary: dict) -> None:
     for p in sorted(set(ra.timings) | set(rb.timings)):
         md.append(f"| {p} | {ra.timings.get(p, 0.0):.1f} | {rb.timings.get(p, 0.0):.1f} |")
     md.append("")
+    md += list(tail)
     for name, (title, _) in figs.items():
         md += [f"## {title}", "", f"![{title}]({name})", ""]
     (out / "report.md").write_text("\n".join(md))
     # one self-contained HTML file
     body = []
-    in_list = False
+    block = None  # the open list or table
     for line in md:
+        kind = "ul" if line.startswith("- ") else "table" if line.startswith("|") else None
+        if block and kind != block:
+            body.append(f"</{block}>")
+            block = None
+        if kind and not block:
+            body.append("<ul>" if kind == "ul" else "<table border=1 cellpadding=3>")
+            block = kind
         if line.startswith("# "):
             body.append(f"<h1>{html.escape(line[2:])}</h1>")
         elif line.startswith("## "):
             body.append(f"<h2>{html.escape(line[3:])}</h2>")
-        elif line.startswith("- "):
-            if not in_list:
-                body.append("<ul>")
-                in_list = True
+        elif kind == "ul":
             body.append(f"<li>{html.escape(line[2:]).replace('`', '')}</li>")
-            continue
         elif line.startswith("!["):
             name = line[line.index("(") + 1:-1]
             data = base64.b64encode((out / name).read_bytes()).decode()
             body.append(f'<img style="max-width:100%" src="data:image/png;base64,{data}"/>')
-        elif line.startswith("|") and not line.startswith("|---"):
-            cells = [c.strip() for c in line.strip("|").split("|")]
-            body.append("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in cells) + "</tr>")
-            continue
-        if in_list and not line.startswith("- "):
-            body.append("</ul>")
-            in_list = False
-    text = "\n".join(body).replace("</ul>\n<tr>", "</ul>\n<table border=1 cellpadding=3><tr>")
-    text = text.replace("</tr>\n<h2>", "</tr></table>\n<h2>", 1)
+        elif kind == "table":
+            if not line.startswith("|---"):
+                cells = [c.strip() for c in line.strip("|").split("|")]
+                body.append("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in cells) + "</tr>")
+        elif line.strip():
+            body.append(f"<p>{html.escape(line).replace('`', '')}</p>")
+    if block:
+        body.append(f"</{block}>")
+    text = "\n".join(body)
     (out / "report.html").write_text(
         "<!DOCTYPE html><html><head><meta charset='utf-8'><title>cfddem comparison</title>"
         "<style>body{font-family:sans-serif;max-width:1100px;margin:auto}</style></head><body>\n"

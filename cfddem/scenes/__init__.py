@@ -128,6 +128,10 @@ class Scene:
     def make_measurements(self):
         return None
 
+    def make_budget(self):
+        """A :class:`cfddem.measure.budget.MomentumBudget` sampled with the measurements, or None."""
+        return None
+
     def exit_mask(self, pos):
         return None
 

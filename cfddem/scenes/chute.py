@@ -60,6 +60,9 @@ class ChuteScene(Scene):
             "cell_x": _pos(0.005, "m", "measurement cell size across the chute"),
             "cell_z": _pos(0.006, "m", "measurement cell size along the chute"),
             "n_top": Key("int", 6, "-", "topmost particles per cell for the surface velocity", lo=1),
+            "budget_bin": _pos(0.05, "m", "streamwise bin length of the particles' momentum budget "
+                               "(/measurements/momentum_budget; bins from the first multiple of it past the sluice "
+                               "to one bin before the exit)"),
         },
         "gas": {
             "height": _pos(0.045, "m", "height of the gas domain above the floor"),
@@ -263,6 +266,28 @@ class ChuteScene(Scene):
         return ChuteMeasurements(
             width=case.geometry.width, z_range=(case.geometry.z_start, case.exit.z), start_time=m.start_time,
             stations=tuple(m.stations), sensor_x=tuple(m.sensors_x), dx=m.cell_x, dz=m.cell_z, n_top=m.n_top)
+
+    def make_budget(self):
+        """The particles' streamwise momentum budget (:mod:`cfddem.measure.budget`) in bins of
+        ``measurements.budget_bin`` from the first multiple of it at least one bin past the
+        sluice's release plane to one bin before the exit (so that the flux slabs at the end
+        faces hold neither held feed particles nor the exit plane)."""
+        case = self.case
+        if not case.measurements.enabled:
+            return None
+        from ..measure.budget import MomentumBudget
+
+        h = float(case.measurements.budget_bin)
+        inl = self.sluice(case) if case.inlet.type == "sluice" else None
+        z_rel = (case.inlet.z + inl.hold_length) if inl is not None else case.geometry.z_start
+        z_a = math.ceil((z_rel + h) / h - 1e-9) * h
+        z_b = math.floor((case.exit.z - h) / h + 1e-9) * h
+        if z_b - z_a < h - 1e-12:
+            return None
+        nb = int(round((z_b - z_a) / h))
+        names = [w.name for w in self.wall_specs(case)]
+        return MomentumBudget(z_a + h * np.arange(nb + 1), axis=2, start_time=case.measurements.start_time,
+                              wall_names=names)
 
     def exit_mask(self, pos):
         return pos[:, 2] > self.case.exit.z
