@@ -61,6 +61,7 @@ Limits: meshes do not see periodic images; a particle has at most ``K`` mesh con
 
 from __future__ import annotations
 
+import functools
 import math
 from pathlib import Path
 
@@ -143,6 +144,39 @@ def triangle_rows(V, F) -> np.ndarray:
     T[:, 15] = 1.0 / (d11 * d22 - d12 * d12)
     T[:, 16] = np.einsum("ij,ij->i", e3, e3)
     return T
+
+
+@functools.lru_cache(maxsize=8)
+def _read_triangles(path: str, mtime_ns: int, size: int):
+    """(points (nv, 3) in the file's units, triangles (nt, 3)) of a mesh file, read through meshio
+    once per process for the same file, modification time and size (a case's mesh is needed by
+    the validation, ``cfddem check``, the bounding box and the particle system; MeshWall.from_file
+    applies the scale and transform to the cached points).  The arrays are read-only.  Errors
+    are :class:`CaseError` with key "file" (not cached: a failed read is tried again)."""
+    import meshio
+
+    name = Path(path).name
+    try:
+        with np.errstate(over="ignore"):  # meshio's binary-size probe of ASCII files
+            m = meshio.read(path)
+    except Exception as exc:  # meshio raises many kinds for files that are not meshes
+        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise CaseError("file", f"cannot read {name} as a mesh ({msg})") from None
+    tris = []
+    for block in m.cells:
+        c = np.asarray(block.data)
+        if block.type == "triangle":
+            tris.append(c)
+        elif block.type == "quad" or block.type.startswith("polygon"):
+            for j in range(1, c.shape[1] - 1):  # fan
+                tris.append(c[:, [0, j, j + 1]])
+    if not tris or sum(len(t) for t in tris) == 0:
+        raise CaseError("file", f"{name} holds no triangles")
+    P = np.array(np.asarray(m.points, dtype=float)[:, :3])
+    F = np.concatenate(tris)
+    P.flags.writeable = False
+    F.flags.writeable = False
+    return P, F
 
 
 class MeshWall:
@@ -240,10 +274,8 @@ class MeshWall:
         angle in degrees) about the origin, then translated by ``translate`` (m).  Polygons
         (quads of OBJ files) are split into triangles (fans).  Other keywords go to
         :class:`MeshWall`.  Errors (missing file, not a mesh, no triangles) are one-line
-        :class:`CaseError`.
+        :class:`CaseError`.  The file is read once per process (:func:`_read_triangles`).
         """
-        import meshio
-
         path = Path(path)
         name = path.stem if name is None else name
         key = f"mesh {name!r}"
@@ -258,23 +290,12 @@ class MeshWall:
             raise CaseError(f"{key}.scale", f"must be positive, got {scale}")
         if not path.is_file():
             raise CaseError(f"{key}.file", f"no such file: {path}")
+        st = path.stat()
         try:
-            with np.errstate(over="ignore"):  # meshio's binary-size probe of ASCII files
-                m = meshio.read(path)
-        except Exception as exc:  # meshio raises many kinds for files that are not meshes
-            msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise CaseError(f"{key}.file", f"cannot read {path.name} as a mesh ({msg})") from None
-        tris = []
-        for block in m.cells:
-            c = np.asarray(block.data)
-            if block.type == "triangle":
-                tris.append(c)
-            elif block.type == "quad" or block.type.startswith("polygon"):
-                for j in range(1, c.shape[1] - 1):  # fan
-                    tris.append(c[:, [0, j, j + 1]])
-        if not tris or sum(len(t) for t in tris) == 0:
-            raise CaseError(f"{key}.file", f"{path.name} holds no triangles")
-        V = np.asarray(m.points, dtype=float)[:, :3] * scale
+            P, F = _read_triangles(str(path.resolve()), st.st_mtime_ns, st.st_size)
+        except CaseError as e:
+            raise CaseError(f"{key}.file", e.reason) from None
+        V = P * scale
         if rotate is not None:
             try:
                 axis, deg = rotate
@@ -283,7 +304,7 @@ class MeshWall:
                 raise CaseError(f"{key}.rotate", f"needs (axis (3), angle in degrees), got {rotate!r}") from None
             V = V @ R.T
         V = V + _vec3(f"{key}.translate", translate)
-        return cls(V, np.concatenate(tris), contact, name=name, source=str(path), **kw)
+        return cls(V, F, contact, name=name, source=str(path), **kw)
 
     # ------------------------------------------------------------------ topology and checks
     def _topology(self):
