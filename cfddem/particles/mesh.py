@@ -55,6 +55,10 @@ centre lies within (R_max + skin + half the cell diagonal) of it; only the cells
 around its plane are examined), and each particle keeps the triangles of its own cell that
 lie within r + skin of its centre (a candidate list, CSR).  The list is rebuilt when a particle or a mesh vertex has moved more than skin/2 since the build.
 The force kernel visits only the particles that have candidates.
+Through-the-mesh diagnosis (:meth:`MeshTables.crossings`, :func:`chord_grid`,
+:func:`chord_crossings`; used by :mod:`cfddem.particles.crossing`): the chords from particle
+centres at a check to the centres now, taken into each mesh's own frame, are tested against the
+triangles of a grid built once per mesh.
 Limits: meshes do not see periodic images; a particle has at most ``K`` mesh contacts at once
 (the step stops with a clear message otherwise).
 """
