@@ -526,63 +526,36 @@ class Simulation:
         self.timings["inlet_exit"] += _time.perf_counter() - t0
 
     def _check_walls_crossed(self) -> None:
-        """Stop with a diagnosis when a particle went through a wall since the last check: in
-        front of the wall (and within its extent) then, fully behind it (and within its extent)
-        now.  Particles that fly over a wall's edge are not affected."""
+        """Stop with a diagnosis when a particle went through a wall (analytic or mesh) since the
+        last check (:mod:`cfddem.particles.crossing`): on the wall's side then, more than its
+        radius behind it now, through the wall itself.  Particles that fly over a wall's edge
+        are not affected."""
+        from .particles.crossing import crossing_mark, find_crossing
+
         sys_ = self.system
-        pos, ids, rad = sys_.pos, sys_.ids, sys_.radius
         prev = getattr(self, "_prev_check", None)
-        self._prev_check = (ids.copy(), pos.copy(), sys_.time, sys_.step_count)
-        if prev is None or not len(ids):
+        self._prev_check = crossing_mark(sys_)
+        if prev is None:
             return
-        pid, ppos, pt, pstep = prev
-        order = np.argsort(pid)
-        k = np.searchsorted(pid[order], ids)
-        k = np.minimum(k, len(pid) - 1)
-        known = pid[order][k] == ids
-        if not known.any():
+        c = find_crossing(sys_, prev)
+        if c is None:
             return
-        cur = pos[known]
-        old = ppos[order][k[known]]
-        r = rad[known]
-        # the engine's analytic walls in order (mesh walls are not checked: particles see only
-        # their front side and the engine keeps them apart, ParticleSystem.meshes)
-        for iw, w in enumerate(w for w in self.walls if w.kind != "mesh"):
-            if not sys_.wall_active(iw):  # a gate that is open
-                continue
-            n = w.normal / np.linalg.norm(w.normal)
-            p0 = sys_.wall_position(iw)
-            h_now = (cur - p0) @ n
-            h_old = (old - p0) @ n
-            if w.kind == "cylinder":  # signed distance from the ring surface, > 0 on the particles' side
-                sg = 1.0 if w.inside else -1.0
-                inside_ends = (np.abs(h_now) <= w.half_extents[1]) & (np.abs(h_old) <= w.half_extents[1])
-                h_now = sg * (w.half_extents[0] - np.linalg.norm(cur - p0 - np.outer(h_now, n), axis=1))
-                h_old = sg * (w.half_extents[0] - np.linalg.norm(old - p0 - np.outer(h_old, n), axis=1))
-            crossed = (h_old >= 0.0) & (h_now < -r)
-            if w.kind == "cylinder":
-                crossed &= inside_ends
-            if w.kind == "annulus" and crossed.any():
-                for q, hq in ((cur, h_now), (old, h_old)):
-                    rq = np.linalg.norm(q - p0 - np.outer(hq, n), axis=1)
-                    crossed &= (rq >= w.half_extents[0]) & (rq <= w.half_extents[1])
-            if w.kind == "rectangle" and crossed.any():
-                a1 = w.u_axis - np.dot(w.u_axis, n) * n
-                a1 /= np.linalg.norm(a1)
-                a2 = np.cross(n, a1)
-                for q in (cur, old):
-                    d = q - p0
-                    crossed &= (np.abs(d @ a1) <= w.half_extents[0]) & (np.abs(d @ a2) <= w.half_extents[1])
-            if crossed.any():
-                i = int(np.flatnonzero(crossed)[0])
-                j = np.flatnonzero(known)[i]
-                speed = float(np.linalg.norm(sys_.vel[j]))
-                ratio = self.dt / collision_time(self.case)
-                raise RunError(
-                    f"step {sys_.step_count}, t = {sys_.time:.6g} s: particle {int(ids[j])} went through wall "
-                    f"'{w.name}' since step {pstep} (now {-h_now[i] * 1e3:.3g} mm behind it, speed {speed:.3g} m/s); "
-                    f"likely cause: time step too large for this stiffness and speed "
-                    f"(dt = {20 * ratio:.2g} t_c/20, the particle moves {speed * self.dt / r[i]:.2g} radii per step)")
+        j = c.index
+        speed = float(np.linalg.norm(sys_.vel[j]))
+        r = float(sys_.radius[j])
+        ratio = self.dt / collision_time(self.case)
+        where = f"wall '{c.wall}'"
+        if c.triangle >= 0:
+            x = sys_.pos[j]
+            where += (f" (mesh, triangle {c.triangle}) since step {c.since_step} (now at "
+                      f"[{x[0]:.4g}, {x[1]:.4g}, {x[2]:.4g}] m, ")
+        else:
+            where += f" since step {c.since_step} (now "
+        raise RunError(
+            f"step {sys_.step_count}, t = {sys_.time:.6g} s: particle {c.pid} went through {where}"
+            f"{c.depth * 1e3:.3g} mm behind it, speed {speed:.3g} m/s); "
+            f"likely cause: time step too large for this stiffness and speed "
+            f"(dt = {20 * ratio:.2g} t_c/20, the particle moves {speed * self.dt / r:.2g} radii per step)")
 
     def _series_row(self) -> dict:
         s = self.system

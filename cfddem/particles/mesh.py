@@ -55,12 +55,17 @@ centre lies within (R_max + skin + half the cell diagonal) of it; only the cells
 around its plane are examined), and each particle keeps the triangles of its own cell that
 lie within r + skin of its centre (a candidate list, CSR).  The list is rebuilt when a particle or a mesh vertex has moved more than skin/2 since the build.
 The force kernel visits only the particles that have candidates.
+Through-the-mesh diagnosis (:meth:`MeshTables.crossings`, :func:`chord_grid`,
+:func:`chord_crossings`; used by :mod:`cfddem.particles.crossing`): the chords from particle
+centres at a check to the centres now, taken into each mesh's own frame, are tested against the
+triangles of a grid built once per mesh.
 Limits: meshes do not see periodic images; a particle has at most ``K`` mesh contacts at once
 (the step stops with a clear message otherwise).
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from pathlib import Path
 
@@ -143,6 +148,39 @@ def triangle_rows(V, F) -> np.ndarray:
     T[:, 15] = 1.0 / (d11 * d22 - d12 * d12)
     T[:, 16] = np.einsum("ij,ij->i", e3, e3)
     return T
+
+
+@functools.lru_cache(maxsize=8)
+def _read_triangles(path: str, mtime_ns: int, size: int):
+    """(points (nv, 3) in the file's units, triangles (nt, 3)) of a mesh file, read through meshio
+    once per process for the same file, modification time and size (a case's mesh is needed by
+    the validation, ``cfddem check``, the bounding box and the particle system; MeshWall.from_file
+    applies the scale and transform to the cached points).  The arrays are read-only.  Errors
+    are :class:`CaseError` with key "file" (not cached: a failed read is tried again)."""
+    import meshio
+
+    name = Path(path).name
+    try:
+        with np.errstate(over="ignore"):  # meshio's binary-size probe of ASCII files
+            m = meshio.read(path)
+    except Exception as exc:  # meshio raises many kinds for files that are not meshes
+        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise CaseError("file", f"cannot read {name} as a mesh ({msg})") from None
+    tris = []
+    for block in m.cells:
+        c = np.asarray(block.data)
+        if block.type == "triangle":
+            tris.append(c)
+        elif block.type == "quad" or block.type.startswith("polygon"):
+            for j in range(1, c.shape[1] - 1):  # fan
+                tris.append(c[:, [0, j, j + 1]])
+    if not tris or sum(len(t) for t in tris) == 0:
+        raise CaseError("file", f"{name} holds no triangles")
+    P = np.array(np.asarray(m.points, dtype=float)[:, :3])
+    F = np.concatenate(tris)
+    P.flags.writeable = False
+    F.flags.writeable = False
+    return P, F
 
 
 class MeshWall:
@@ -240,10 +278,8 @@ class MeshWall:
         angle in degrees) about the origin, then translated by ``translate`` (m).  Polygons
         (quads of OBJ files) are split into triangles (fans).  Other keywords go to
         :class:`MeshWall`.  Errors (missing file, not a mesh, no triangles) are one-line
-        :class:`CaseError`.
+        :class:`CaseError`.  The file is read once per process (:func:`_read_triangles`).
         """
-        import meshio
-
         path = Path(path)
         name = path.stem if name is None else name
         key = f"mesh {name!r}"
@@ -258,23 +294,12 @@ class MeshWall:
             raise CaseError(f"{key}.scale", f"must be positive, got {scale}")
         if not path.is_file():
             raise CaseError(f"{key}.file", f"no such file: {path}")
+        st = path.stat()
         try:
-            with np.errstate(over="ignore"):  # meshio's binary-size probe of ASCII files
-                m = meshio.read(path)
-        except Exception as exc:  # meshio raises many kinds for files that are not meshes
-            msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise CaseError(f"{key}.file", f"cannot read {path.name} as a mesh ({msg})") from None
-        tris = []
-        for block in m.cells:
-            c = np.asarray(block.data)
-            if block.type == "triangle":
-                tris.append(c)
-            elif block.type == "quad" or block.type.startswith("polygon"):
-                for j in range(1, c.shape[1] - 1):  # fan
-                    tris.append(c[:, [0, j, j + 1]])
-        if not tris or sum(len(t) for t in tris) == 0:
-            raise CaseError(f"{key}.file", f"{path.name} holds no triangles")
-        V = np.asarray(m.points, dtype=float)[:, :3] * scale
+            P, F = _read_triangles(str(path.resolve()), st.st_mtime_ns, st.st_size)
+        except CaseError as e:
+            raise CaseError(f"{key}.file", e.reason) from None
+        V = P * scale
         if rotate is not None:
             try:
                 axis, deg = rotate
@@ -283,7 +308,7 @@ class MeshWall:
                 raise CaseError(f"{key}.rotate", f"needs (axis (3), angle in degrees), got {rotate!r}") from None
             V = V @ R.T
         V = V + _vec3(f"{key}.translate", translate)
-        return cls(V, np.concatenate(tris), contact, name=name, source=str(path), **kw)
+        return cls(V, F, contact, name=name, source=str(path), **kw)
 
     # ------------------------------------------------------------------ topology and checks
     def _topology(self):
@@ -472,6 +497,7 @@ class MeshTables:
         self.disp = 0.0  # bound on any vertex's displacement since the last list build
         self.events = sorted((t, k, on) for k, m in enumerate(meshes) for t, on in m.schedule)
         self.next_event = 0
+        self._chord_grids: dict = {}  # mesh -> its triangles binned for crossings() (built when first needed)
 
     def moving(self) -> np.ndarray:
         return np.flatnonzero(np.any(self.vel[: self.nm] != 0.0, axis=1) | np.any(self.omg[: self.nm] != 0.0, axis=1))
@@ -496,6 +522,34 @@ class MeshTables:
     def vertices_now(self, k: int) -> np.ndarray:
         m = self.meshes[k]
         return self.cen[k] + (m.vertices - self.cen0[k]) @ self.rot[k].T
+
+    def placement(self) -> dict:
+        """A copy of where the meshes are now and which are on (for :meth:`crossings`)."""
+        return dict(cen=self.cen.copy(), rot=self.rot.copy(), act=self.act.copy(), next_event=self.next_event)
+
+    def crossings(self, k: int, before: dict, old, new, radius):
+        """Particles whose centre went through mesh k from its front to more than their radius
+        behind it between two placements: ``before`` (:meth:`placement`, with the centres
+        ``old``) and now (centres ``new``).  Both are taken into the mesh's own frame (its
+        placement at the start), so a moving mesh is seen at rest; the chord old -> new is tested
+        against the triangles (:func:`chord_crossings`) through a grid cached per mesh.
+        Returns (triangle index in ``meshes[k].triangles`` or -1, depth behind it (m), number of
+        triangle tests done): the first triangle the chord meets, when it meets it from the
+        front and ends more than r behind its plane; -1 otherwise (no crossing, or the first
+        triangle met from behind)."""
+        a = self.cen0[k] + (np.asarray(old, float) - before["cen"][k]) @ before["rot"][k]
+        b = self.cen0[k] + (np.asarray(new, float) - self.cen[k]) @ self.rot[k]
+        grid = self._chord_grids.get(k)
+        if grid is None:
+            grid = self._chord_grids[k] = chord_grid(self.T0[int(self.tstart[k]): int(self.tstart[k + 1])])
+        n = len(a)
+        tri = np.empty(n, np.int64)
+        s = np.empty(n)
+        h = np.empty(n)
+        tests = np.empty(n, np.int64)
+        chord_crossings(n, np.ascontiguousarray(a), np.ascontiguousarray(b), *grid, tri, s, h, tests)
+        hit = (tri >= 0) & (h < -np.asarray(radius, float))
+        return np.where(hit, tri, -1), np.where(hit, -h, 0.0), int(tests.sum())
 
     def get_state(self) -> dict:
         return dict(m_offset=self.offset.copy(), m_rot=self.rot.copy(), m_act=self.act.copy(),
@@ -966,6 +1020,97 @@ def mesh_cand_fill(n, pos, radius, skin, lo, size, nc, ctstart, ctri, T, cstart,
             if d2 < lim * lim:
                 clist[p] = t
                 p += 1
+
+
+def chord_grid(T) -> tuple:
+    """Bin the triangle rows ``T`` (one mesh, in its own frame) into a uniform grid of cubes about
+    the mean edge length (at most 4 million cells) for the chord test :func:`chord_crossings`:
+    (T, lo, size, nc, ctstart, ctri); a triangle goes into every cell it may touch
+    (:func:`tri_cell_count`)."""
+    T = np.ascontiguousarray(T)
+    nt = len(T)
+    P = np.concatenate([T[:, 0:3], T[:, 0:3] + T[:, 3:6], T[:, 0:3] + T[:, 6:9]])
+    lo, hi = P.min(axis=0), P.max(axis=0)
+    L = hi - lo
+    diag = float(np.linalg.norm(L))
+    h = max(float(np.mean(np.sqrt(T[:, [12, 14, 16]]))), 1e-6 * diag)
+    while np.prod(np.floor(L / h) + 1) > 4e6:
+        h *= 1.25
+    nc = (np.floor(L / h) + 1).astype(np.int64)
+    size = np.full(3, h)
+    cut = 1e-9 * diag
+    counts = np.zeros(nt, np.int64)
+    tri_cell_count(T, nt, lo, size, nc, cut, counts)
+    start = np.zeros(nt + 1, np.int64)
+    np.cumsum(counts, out=start[1:])
+    cells = np.empty(int(start[-1]), np.int64)
+    tris = np.empty(int(start[-1]), np.int64)
+    tri_cell_fill(T, nt, lo, size, nc, cut, start, cells, tris)
+    order = np.argsort(cells, kind="stable")
+    ncell = int(np.prod(nc))
+    ctstart = np.zeros(ncell + 1, np.int64)
+    np.cumsum(np.bincount(cells, minlength=ncell), out=ctstart[1:])
+    return T, lo, size, nc, ctstart, np.ascontiguousarray(tris[order])
+
+
+@parallel_kernel
+def chord_crossings(n, a, b, T, lo, size, nc, ctstart, ctri, ftri, fs, fh, ntest):
+    """The first triangle met by each chord a[i] -> b[i] (the triangles of the grid cells its
+    bounding box covers, closed triangles: faces, edges and vertices): ftri[i] (-1: none),
+    fs[i] (fraction of the chord), fh[i] = (b[i] - P0).n of that triangle (< 0: met from the
+    front, since a chord crosses a plane once); ties go to the lowest triangle index.
+    ntest[i]: triangles tested (the cost)."""
+    for i in prange(n):
+        ftri[i] = -1
+        fs[i] = 2.0
+        fh[i] = 0.0
+        ntest[i] = 0
+        ok = True
+        for c in range(3):
+            if not (math.isfinite(a[i, c]) and math.isfinite(b[i, c])):
+                ok = False
+            elif (max(a[i, c], b[i, c]) < lo[c] - 0.5 * size[c]
+                  or min(a[i, c], b[i, c]) > lo[c] + (nc[c] + 0.5) * size[c]):
+                ok = False
+        if not ok:
+            continue
+        ix0, ix1 = _cell_range(lo[0], size[0], nc[0], min(a[i, 0], b[i, 0]), max(a[i, 0], b[i, 0]))
+        iy0, iy1 = _cell_range(lo[1], size[1], nc[1], min(a[i, 1], b[i, 1]), max(a[i, 1], b[i, 1]))
+        iz0, iz1 = _cell_range(lo[2], size[2], nc[2], min(a[i, 2], b[i, 2]), max(a[i, 2], b[i, 2]))
+        dx = b[i, 0] - a[i, 0]
+        dy = b[i, 1] - a[i, 1]
+        dz = b[i, 2] - a[i, 2]
+        cnt = 0
+        for cx in range(ix0, ix1 + 1):
+            for cy in range(iy0, iy1 + 1):
+                for cz in range(iz0, iz1 + 1):
+                    cell = (cx * nc[1] + cy) * nc[2] + cz
+                    for j in range(ctstart[cell], ctstart[cell + 1]):
+                        t = ctri[j]
+                        cnt += 1
+                        ax = a[i, 0] - T[t, 0]
+                        ay = a[i, 1] - T[t, 1]
+                        az = a[i, 2] - T[t, 2]
+                        ha = ax * T[t, 9] + ay * T[t, 10] + az * T[t, 11]
+                        hb = (b[i, 0] - T[t, 0]) * T[t, 9] + (b[i, 1] - T[t, 1]) * T[t, 10] + \
+                            (b[i, 2] - T[t, 2]) * T[t, 11]
+                        if not ((ha >= 0.0 and hb < 0.0) or (ha < 0.0 and hb >= 0.0)):
+                            continue
+                        s = ha / (ha - hb)
+                        if s > fs[i] or (s == fs[i] and t > ftri[i]):
+                            continue
+                        px = ax + s * dx
+                        py = ay + s * dy
+                        pz = az + s * dz
+                        d1 = px * T[t, 3] + py * T[t, 4] + pz * T[t, 5]
+                        d2 = px * T[t, 6] + py * T[t, 7] + pz * T[t, 8]
+                        v = (T[t, 14] * d1 - T[t, 13] * d2) * T[t, 15]
+                        w = (T[t, 12] * d2 - T[t, 13] * d1) * T[t, 15]
+                        if v >= -1e-9 and w >= -1e-9 and v + w <= 1.0 + 1e-9:
+                            ftri[i] = t
+                            fs[i] = s
+                            fh[i] = hb
+        ntest[i] = cnt
 
 
 @kernel

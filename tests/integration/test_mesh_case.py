@@ -3,6 +3,7 @@ rest in a closed STL box: the mesh force balances their weight), and bad mesh-wa
 one line naming the key."""
 
 import math
+import os
 import shutil
 import subprocess
 import sys
@@ -129,3 +130,31 @@ def test_rotating_mesh_is_written_every_frame(tmp_path):
     assert np.allclose(v2[:, 1], v0[:, 1])
     with h5py.File(tmp_path / "o" / "results.h5") as h:
         assert {"mesh_box_tx", "mesh_box_ty", "mesh_box_tz"} <= set(h["series"].keys())
+
+
+def test_the_mesh_file_is_read_once(tmp_path, monkeypatch):
+    """`cfddem check` and a run's build of cases/mesh_box_drop in one process read box.stl once
+    (validation, the check's mesh line, the bounding box and the particle system share it); a
+    changed file is read again."""
+    import meshio
+
+    from cfddem.cli import main
+    from cfddem.particles.mesh import _read_triangles
+
+    reads = []
+    real = meshio.read
+    monkeypatch.setattr(meshio, "read", lambda path, *a, **k: reads.append(str(path)) or real(path, *a, **k))
+    _read_triangles.cache_clear()
+    assert main(["check", str(CASE)]) == 0
+    assert [p.rsplit("/", 1)[-1] for p in reads] == ["box.stl"]
+    sim = Simulation(load_case(CASE), tmp_path / "o", echo=False, progress=False)
+    sim.build()
+    assert len(reads) == 1 and sim.system.nm == 1 and sim.system.meshes[0].n_triangles == 48
+    d = tmp_path / "copy"
+    shutil.copytree(CASE, d)
+    Simulation(load_case(d), tmp_path / "o2", echo=False, progress=False).build()
+    assert len(reads) == 2  # another file
+    st = (d / "box.stl").stat()  # the same file touched (a new modification time)
+    os.utime(d / "box.stl", ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    Simulation(load_case(d), tmp_path / "o3", echo=False, progress=False).build()
+    assert len(reads) == 3
