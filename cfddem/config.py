@@ -156,6 +156,13 @@ SCHEMA: dict[str, dict] = {
         "viscosity": _pos(1.8e-5, "Pa s", "gas dynamic viscosity"),
         "cells": Key("ints", [16, 15, 150], "-", "gas grid NX, NY, NZ", length=3),
         "coupling_interval": Key("int", 10, "-", "particle steps per gas step", lo=1),
+        "coupling": Key("str", "two_way", "-", "'two_way': the gas and the particles act on each other; "
+                        "'one_way_rest': a bracketing run, the air held at rest in the simulation's frame with "
+                        "its initial (hydrostatic) pressure, not solved: the particles feel its drag and buoyancy, "
+                        "the air feels nothing (the most slip drag could act on)",
+                        choices=("two_way", "one_way_rest")),
+        "drag_factor": Key("float", 1.0, "-", "every drag coefficient times this (a bracketing run: how the result "
+                           "follows the drag; 1: the closure as published)", lo=0.0),
         "drag_treatment": Key("str", "implicit", "-", "'implicit': drag implicit in the gas step and bounded "
                               "(exact exponential relaxation) for the particles, stable for any particle relaxation "
                               "time; 'explicit': forward Euler, for comparison", choices=("implicit", "explicit")),

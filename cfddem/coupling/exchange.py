@@ -345,7 +345,7 @@ class CoupledGas:
                  gravity=(0.0, 0.0, 0.0), omega=(0.0, 0.0, 0.0), axis_point=(0.0, 0.0, 0.0),
                  periodic=None, log=None, eps_min: float = 0.3, eps_floor: float | None = None,
                  superficial_inlets: dict | None = None, cfl_stop: float = 1.0, divergence_stop: float = 1e-4,
-                 **gas_kw):
+                 drag_factor: float = 1.0, frozen: bool = False, **gas_kw):
         # blow-up guards (the run stops with a diagnosis): the explicit advection is unstable
         # above CFL 1; a mass-balance defect (max |d eps/dt + div(eps u)| dt) above
         # divergence_stop means continuity is no longer enforced
@@ -357,6 +357,13 @@ class CoupledGas:
             raise CaseError("gas.coupling_interval", f"must be >= 1, got {coupling_interval}")
         if eps_floor is not None and not (0.0 < eps_floor < 1.0):
             raise CaseError("gas.eps_floor", f"must lie in (0, 1), got {eps_floor}")
+        if not (drag_factor >= 0.0 and math.isfinite(drag_factor)):
+            raise CaseError("gas.drag_factor", f"must be a finite number >= 0, got {drag_factor}")
+        #: bracketing runs (#20): every drag coefficient times drag_factor; a frozen gas is not
+        #: solved (its fields stay as set: one-way coupling, the particles feel drag and the
+        #: pressure gradient of the held field, the gas feels nothing)
+        self.drag_factor = float(drag_factor)
+        self.frozen = bool(frozen)
         self.system = system
         self.grid = grid
         self.gas = GasSolver(grid, rho=rho, mu=mu, bcs=bcs, gravity=gravity, omega=omega,
@@ -510,11 +517,14 @@ class CoupledGas:
             eps_a, re = plan.interpolate_slip(eps, gas.u.interior, gas.v.interior, gas.w.interior, vel, d,
                                               self.rho, self.mu)
             F = np.ascontiguousarray(self._F(eps_a, re), dtype=np.float64)
+            if self.drag_factor != 1.0:
+                F *= self.drag_factor
             Keff = self._work("_Keff", (n,))
             _keff_kernel(F, eps_a, d, mass, 3.0 * np.pi * self.mu, dtg, 1 if self.drag_treatment == "implicit" else 0,
                          Keff)
             if gone is not None:
                 Keff[gone] = 0.0
+        if n and not self.frozen:
             pairs = plan.deposit_drag_pairs(Keff, vel)  # (D(K_eff), D(K_eff v_c)) per face grid
             drag_K = tuple(self._work("_dK" + loc, a.shape[:3]) for loc, a in zip(_LOC, pairs))
             drag_Up = tuple(self._work("_dUp" + loc, a.shape[:3]) for loc, a in zip(_LOC, pairs))
@@ -522,6 +532,8 @@ class CoupledGas:
                 _drag_grid_kernel(pairs[c].reshape(-1, 2), vc, drag_K[c].reshape(-1), drag_Up[c].reshape(-1))
         else:
             drag_K = drag_Up = None
+        if self.frozen:
+            return self._frozen_forces(plan, vel, Keff if n else None, vol)
         # boundary half-cells (module docstring, step 5b), explicit at p^n
         source = self._boundary_source()
         # --- 3. gas step ------------------------------------------------------------------
@@ -589,6 +601,25 @@ class CoupledGas:
         if self.n_couplings % 1000 == 1 and gas.max_stable_dt() < dtg:  # (max_stable_dt costs 0.2 ms)
             self.log.warning("gas time step dt_g = %.3g s exceeds the gas's stable step %.3g s (CFL %.3g)",
                              dtg, gas.max_stable_dt(), info.cfl)
+        return None
+
+    def _frozen_forces(self, plan, vel, Keff, vol):
+        """A frozen gas (one-way coupling): the particles' drag and pressure forces from the
+        held fields, nothing back to the gas, no gas step."""
+        sys_, gas = self.system, self.gas
+        self.n_couplings += 1
+        gas.time += self.dt_gas
+        if sys_.n:
+            G, Gb, _ = self._pressure_fields()
+            sink = self.force_sink
+            keep = sink is not None and sink.wants_gas(sys_.time)
+            f = plan.apply_forces(gas.u.interior, gas.v.interior, gas.w.interior, vel, Keff, vol, G, Gb,
+                                  sys_.ext_force, boundary_used=self._has_boundary, store=keep)
+            if keep:
+                sink.add_gas(sys_.time, self.dt_gas, np.ascontiguousarray(sys_.pos), sys_.held, f["fd_each"],
+                             f["fp_each"] + f["fb_each"])
+            self._last["drag_power"] = f["power"]
+            self._last["max_drag_force"] = f["max_magnitude"]
         return None
 
     def _left_the_gas(self, pos):
@@ -949,12 +980,18 @@ def build_coupled_gas(case, system, domain, log=None) -> CoupledGas:
     its scene declares (grid, a boundary condition per face, frame, initial fields), with the
     gas properties, closure, coupling interval and solver of the case's ``[gas]``."""
     gcfg = case.gas
+    frozen = gcfg.coupling == "one_way_rest"
     cg = CoupledGas(system, domain.grid, domain.bcs, rho=gcfg.density, mu=gcfg.viscosity, closure=gcfg.drag,
                     coupling_interval=gcfg.coupling_interval, drag_treatment=gcfg.drag_treatment,
                     gravity=domain.gravity, omega=domain.omega, axis_point=domain.axis_point, log=log,
-                    pressure_solver=gcfg.pressure_solver, tol=gcfg.pressure_tol)
+                    pressure_solver=gcfg.pressure_solver, tol=gcfg.pressure_tol, drag_factor=gcfg.drag_factor,
+                    frozen=frozen)
     cg.average_start = float(case.measurements.start_time)
-    if domain.velocity is not None:
+    if frozen:  # the air at rest in the simulation's frame, its pressure the domain's initial (hydrostatic) one;
+        # at rest on the boundary faces too (an inlet's or a moving lid's face values are not imposed)
+        for f in (cg.gas.u, cg.gas.v, cg.gas.w):
+            f.data[...] = 0.0
+    elif domain.velocity is not None:
         cg.gas.set_velocity(domain.velocity)
     if domain.pressure is not None:
         cg.gas.set_pressure(domain.pressure)
