@@ -383,9 +383,10 @@ class CoupledGas:
         self.log = log if log is not None else logging.getLogger("cfddem")
         self.phase = 0
         self.n_couplings = 0
-        #: an object with ``wants_gas(t)`` and ``add_gas(t, dt_g, pos, held, drag, pressure)``
-        #: (a :class:`cfddem.measure.budget.MomentumBudget`): given the per-particle drag and
-        #: pressure force (n, 3) of every coupling step it wants, each applied for dt_g
+        #: an object with ``wants_gas(t)`` and ``add_gas(t, dt_g, pos, held, drag, pressure, keff,
+        #: eps)`` (a :class:`cfddem.measure.budget.MomentumBudget`): given the per-particle drag and
+        #: pressure force (n, 3) of every coupling step it wants, each applied for dt_g, and the
+        #: drag coefficients (drag = keff (u - v)) and porosities at the particles (n,)
         self.force_sink = None
         self._last = {"gas_pressure_iterations": 0.0, "gas_pressure_residual": 0.0, "gas_cfl": 0.0,
                       "min_porosity": 1.0, "gas_max_divergence": 0.0, "drag_power": 0.0,
@@ -533,7 +534,7 @@ class CoupledGas:
         else:
             drag_K = drag_Up = None
         if self.frozen:
-            return self._frozen_forces(plan, vel, Keff if n else None, vol)
+            return self._frozen_forces(plan, vel, Keff if n else None, vol, eps_a if n else None)
         # boundary half-cells (module docstring, step 5b), explicit at p^n
         source = self._boundary_source()
         # --- 3. gas step ------------------------------------------------------------------
@@ -577,7 +578,7 @@ class CoupledGas:
             f = plan.apply_forces(gas.u.interior, gas.v.interior, gas.w.interior, vel, Keff, vol, G, Gb,
                                   sys_.ext_force, boundary_used=self._has_boundary, store=keep)
             if keep:
-                sink.add_gas(sys_.time, dtg, pos, sys_.held, f["fd_each"], f["fp_each"] + f["fb_each"])
+                sink.add_gas(sys_.time, dtg, pos, sys_.held, f["fd_each"], f["fp_each"] + f["fb_each"], Keff, eps_a)
             self._last["drag_power"] = f["power"]
             self._last["max_drag_force"] = f["max_magnitude"]
             # both sides of the exchange (momentum received), for conservation checks: the
@@ -603,7 +604,7 @@ class CoupledGas:
                              dtg, gas.max_stable_dt(), info.cfl)
         return None
 
-    def _frozen_forces(self, plan, vel, Keff, vol):
+    def _frozen_forces(self, plan, vel, Keff, vol, eps_a):
         """A frozen gas (one-way coupling): the particles' drag and pressure forces from the
         held fields, nothing back to the gas, no gas step."""
         sys_, gas = self.system, self.gas
@@ -617,7 +618,7 @@ class CoupledGas:
                                   sys_.ext_force, boundary_used=self._has_boundary, store=keep)
             if keep:
                 sink.add_gas(sys_.time, self.dt_gas, np.ascontiguousarray(sys_.pos), sys_.held, f["fd_each"],
-                             f["fp_each"] + f["fb_each"])
+                             f["fp_each"] + f["fb_each"], Keff, eps_a)
             self._last["drag_power"] = f["power"]
             self._last["max_drag_force"] = f["max_magnitude"]
         return None

@@ -47,6 +47,9 @@ import numpy as np
 TERMS = ("gravity", "walls", "contacts", "drag", "pressure", "coriolis", "centrifugal", "flux")
 #: the terms sampled at the measurement times (the gas's are integrated over every gas step)
 SAMPLED = ("gravity", "walls", "contacts", "coriolis", "centrifugal", "flux")
+#: the particles whose slip against the gas is averaged, by the porosity at their centre
+SLIP_CLASSES = ("bed", "surface", "dilute")
+SLIP_EDGES = (0.6, 0.9)
 
 
 def block_error(samples: np.ndarray, n_blocks: int = 10) -> np.ndarray:
@@ -88,6 +91,7 @@ class MomentumBudget:
         # gas forces: impulse per bin since the last sample, and per-sample-interval means
         self._acc = {"drag": np.zeros(self.n_bins), "pressure": np.zeros(self.n_bins)}
         self._acc_all = np.zeros(2)  # impulse on every free particle, in the bins or not
+        self._slip = np.zeros((len(SLIP_CLASSES), 2))  # time integrals of (sum of slips, count) per class
         self._acc_t = 0.0
         self._gas_t = 0.0  # all gas time added (the window's)
         self._gas_rows: dict[str, list] = {"drag": [], "pressure": [], "duration": []}
@@ -114,13 +118,25 @@ class MomentumBudget:
         """Whether the gas step starting at ``time`` lies in the averaging window."""
         return time >= self.start_time - 1e-12
 
-    def add_gas(self, time: float, dt_gas: float, pos, held, drag, pressure) -> None:
+    def add_gas(self, time: float, dt_gas: float, pos, held, drag, pressure, keff=None, eps=None) -> None:
         """One gas step's forces on the particles ((n, 3) each, applied from ``time`` for
-        ``dt_gas``; ``held`` (n,) bool: not applied), binned by ``pos`` (module doc)."""
+        ``dt_gas``; ``held`` (n,) bool: not applied), binned by ``pos`` (module doc).  With the
+        drag coefficients ``keff`` (n,) (drag = keff (u - v)) and the porosities ``eps`` (n,) at
+        the particles, also the mean slip u - v along the axis of the particles in the bed
+        (eps < 0.6), the surface layer (0.6 <= eps < 0.9) and dilute (eps >= 0.9) (:data:`SLIP_CLASSES`)."""
         if not self.wants_gas(time):
             return
         a = self.axis
         b = self._bins(np.asarray(pos)[:, a], ~np.asarray(held, bool))
+        if keff is not None and eps is not None and len(b):
+            k = np.asarray(keff, float)
+            ok = (k > 0) & (b >= 0)
+            slip = np.zeros(len(k))
+            slip[ok] = np.asarray(drag)[ok, a] / k[ok]
+            cls = np.digitize(np.asarray(eps, float), SLIP_EDGES)
+            for j in range(len(SLIP_CLASSES)):
+                sel = ok & (cls == j)
+                self._slip[j] += dt_gas * np.array([slip[sel].sum(), sel.sum()])
         self._acc["drag"] += dt_gas * self._bin_sum(b, np.asarray(drag)[:, a])
         self._acc["pressure"] += dt_gas * self._bin_sum(b, np.asarray(pressure)[:, a])
         free = ~np.asarray(held, bool)
@@ -217,6 +233,10 @@ class MomentumBudget:
         # the gas's forces on all particles (not only those in the bins), time-averaged
         out["drag_all"] = np.float64(self._acc_all[0] / self._gas_t if self._gas_t else 0.0)
         out["pressure_all"] = np.float64(self._acc_all[1] / self._gas_t if self._gas_t else 0.0)
+        for j, name in enumerate(SLIP_CLASSES):  # count-weighted time averages of the slip u - v
+            s_, c_ = self._slip[j]
+            out[f"slip_{name}"] = np.float64(s_ / c_ if c_ > 0 else np.nan)
+            out[f"slip_{name}_count"] = np.float64(c_ / self._gas_t if self._gas_t else 0.0)
         return out
 
     def attrs(self) -> dict:
@@ -229,7 +249,7 @@ class MomentumBudget:
         st = {"times": np.array(self._times), "acc_t": np.float64(self._acc_t),
               "acc/drag": self._acc["drag"].copy(), "acc/pressure": self._acc["pressure"].copy(),
               "gas/duration": np.array(self._gas_rows["duration"], float), "acc_all": self._acc_all.copy(),
-              "gas_t": np.float64(self._gas_t)}
+              "gas_t": np.float64(self._gas_t), "slip": self._slip.copy()}
         for k in ("drag", "pressure"):
             st[f"gas/{k}"] = np.array(self._gas_rows[k], float).reshape(-1, nb)
         for k, v in self._rows.items():
@@ -246,6 +266,7 @@ class MomentumBudget:
         self._acc_t = float(st.get("acc_t", 0.0))
         self._acc_all = np.asarray(st.get("acc_all", np.zeros(2)), float).copy()
         self._gas_t = float(st.get("gas_t", 0.0))
+        self._slip = np.asarray(st.get("slip", np.zeros((len(SLIP_CLASSES), 2))), float).reshape(-1, 2).copy()
         for k in ("drag", "pressure"):
             self._acc[k] = np.asarray(st.get(f"acc/{k}", np.zeros(self.n_bins)), float).copy()
             self._gas_rows[k] = [np.asarray(r, float) for r in np.asarray(st.get(f"gas/{k}", []), float)]

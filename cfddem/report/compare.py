@@ -513,6 +513,19 @@ def _budget_section(runs, out: Path, summary: dict) -> list[str]:
         sentence = budget_sentence(tg, tf, (vg - vf) / vf if vf else math.nan)
         md += [sentence, ""]
         summary["budget_sentence"] = sentence
+        from ..measure.budget import SLIP_CLASSES, SLIP_EDGES
+
+        lo = (0.0,) + tuple(SLIP_EDGES)
+        hi = tuple(SLIP_EDGES) + (1.0,)
+        md += ["Streamwise slip u - v between the gas and the particles (run with gas), time-averaged over the "
+               "gas steps, by the porosity at the particle's centre:", "",
+               "| particles | porosity | mean number | slip [m/s] |", "|---|---|---|---|"]
+        for j, name in enumerate(SLIP_CLASSES):
+            sl = float(rg.budget.get(f"slip_{name}", math.nan))
+            cnt = float(rg.budget.get(f"slip_{name}_count", 0.0))
+            md.append(f"| {name} | {lo[j]:g} to {hi[j]:g} | {cnt:.0f} | {sl:+.3f} |")
+            summary[f"slip_{name}"] = sl
+        md.append("")
         summary["drag_force_total"] = float(rg.budget.get("drag_all", tg["drag"][0]))
         summary["pressure_force_total"] = float(rg.budget.get("pressure_all", tg["pressure"][0]))
         summary["budget_residual_relative"] = abs(tg["residual"][0]) / abs(tg["gravity"][0]) if tg["gravity"][0] else math.nan
