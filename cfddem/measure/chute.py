@@ -39,6 +39,18 @@ import numpy as np
 
 from cfddem.errors import CaseError
 
+def side_seen_downstream(x: float, width: float) -> str:
+    """The side of the chute that x lies on for an observer standing on the floor and facing
+    down the chute (+z, y up): "right" for x < width/2 (right = z x y = -x: the x = 0 wall is on
+    their right), "left" above, "middle" within a tenth of the width of the centre line.  The
+    measurement names "left"/"centre"/"right" of physics.md section 5 count x from 0 and so
+    name the opposite sides; figures print both (docs/chute-study.md, "Axes and the sense of
+    rotation")."""
+    if abs(x - 0.5 * width) <= 0.1 * width:
+        return "middle"
+    return "right" if x < 0.5 * width else "left"
+
+
 SENSOR_X = (0.015, 0.045, 0.065)
 SENSOR_NAMES = ("left", "centre", "right")
 STATIONS = (0.0, 0.2, 0.4, 0.6)

@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CaseError
+from ..measure.chute import side_seen_downstream
 
 END_LENGTH = 0.1  # m: "velocity at the chute end" = mean over the last 0.1 m
 STATIONS = (0.0, 0.2, 0.4, 0.6)
@@ -134,7 +135,9 @@ def _fig_bed(runs, path):
             if i < bh.shape[0]:
                 ax.plot(r.chute["sensor_z"], 1e3 * bh[i], label=r.label)
         x = np.asarray(runs[0].chute["sensor_x"])
-        ax.set_title(f"{names[i]} sensor (x = {1e3 * x[i]:.0f} mm)" if i < len(x) else names[i])
+        W = float(runs[0].config.get("geometry", {}).get("width", 2 * x[1] if len(x) > 1 else 0.08))
+        ax.set_title(f"'{names[i]}' sensor, x = {1e3 * x[i]:.0f} mm\n({side_seen_downstream(x[i], W)} side "
+                     "seen looking downstream)" if i < len(x) else names[i], fontsize=10)
         ax.set_xlabel("z [m]")
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("bed height [mm]")
@@ -180,7 +183,11 @@ def _fig_profiles(runs, path):
             for sl, c in zip(vel_slices, ("C0", "C1")):
                 key = f"profile_{sl}_vz"
                 if key in r.chute:
-                    axes[0, j].plot(np.asarray(r.chute[key])[j], y, ls, color=c, label=f"{r.label}, {sl}")
+                    rng = np.asarray(r.chute.get(f"slice_{sl}", [np.nan, np.nan]), float)
+                    W = float(r.config.get("geometry", {}).get("width", np.nan))
+                    side = side_seen_downstream(float(rng.mean()), W) if np.all(np.isfinite(rng)) else ""
+                    axes[0, j].plot(np.asarray(r.chute[key])[j], y, ls, color=c,
+                                    label=f"{r.label}, {sl}" + (f" ({side} seen downstream)" if rotating else ""))
             for sl, c in zip(phi_slices, ("C2", "C3", "C4")):
                 key = f"profile_{sl}_phi"
                 if key in r.chute:

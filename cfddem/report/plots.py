@@ -43,10 +43,14 @@ def _save(fig, path) -> Path:
 def plot_bed_height(meas: dict, path) -> Path:
     """Sensor bed height (left / centre / right) along the chute."""
     sx, sz, h = _need(meas, "sensor_x", "sensor_z", "bed_height_sensor")
+    from cfddem.measure.chute import side_seen_downstream
+
     fig, ax = plt.subplots(figsize=(7, 4))
+    W = float(np.asarray(meas["x_edges"])[-1]) if "x_edges" in meas else 2.0 * float(np.mean(sx))
     for j in range(h.shape[0]):
         lab = SENSOR_LABELS[j] if h.shape[0] == 3 else f"sensor {j}"
-        ax.plot(sz * 1e3, h[j] * 1e3, marker=".", label=f"{lab} (x = {sx[j] * 1e3:.0f} mm)")
+        ax.plot(sz * 1e3, h[j] * 1e3, marker=".",
+                label=f"'{lab}', x = {sx[j] * 1e3:.0f} mm ({side_seen_downstream(sx[j], W)} seen downstream)")
     ax.set_xlabel("z along the chute [mm]")
     ax.set_ylabel("bed height [mm]")
     ax.set_title("Bed height (5 x 5 cell sensor average)")

@@ -138,3 +138,4 @@ def test_fixed_bed_slip_is_the_interstitial_velocity(fixed_bed):
     assert 0.15 / 0.9 < r["slip_surface"] < 0.15 / 0.6
     assert r["slip_surface_count"] == pytest.approx(300.0, rel=1e-9)
     assert r["slip_dilute_count"] == 0.0 and r["slip_bed_count"] == 0.0
+

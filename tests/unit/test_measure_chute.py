@@ -232,3 +232,11 @@ def test_chute_measurements_steady_state_and_restart(tmp_path):
         rf.write_measurements(cm.group, r, cm.attrs())
     back = read_measurements(tmp_path / "r.h5")["chute"]
     np.testing.assert_array_equal(back["surface_vz"], r["surface_vz"])
+
+
+def test_side_seen_downstream():
+    """x = 0 is on the right of an observer facing down the chute (right = z x y = -x)."""
+    from cfddem.measure.chute import side_seen_downstream
+
+    assert np.cross([0, 0, 1.0], [0, 1.0, 0]) @ [1.0, 0, 0] == -1.0  # right = -x
+    assert [side_seen_downstream(x, 0.08) for x in (0.015, 0.045, 0.065)] == ["right", "middle", "left"]

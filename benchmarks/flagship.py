@@ -1,0 +1,112 @@
+"""The flagship's cost, A against B, over the same continuation of a developed flow.
+
+    python benchmarks/flagship.py --checkpoint runs/dev/checkpoints/ckpt_X.h5 --duration 0.2 \\
+        --a-tree /path/to/old/checkout --b-set time.dt=8e-5 --b-set gas.coupling_interval=4 \\
+        [--case cases/chute_16rpm] [--threads 2] [--rounds 2] [--out /tmp/flagship]
+
+Each side is ``cfddem run CASE`` from the checkpoint (``checkpoint.start_from``) for
+``--duration`` seconds of flow, run from a code tree (``--a-tree``/``--b-tree``, default this
+checkout: ``python -m cfddem.cli`` with the tree as the working directory imports that tree's
+cfddem) with its own overrides (``--a-set``/``--b-set``, repeatable).  One untimed warm-up run per
+side fills its numba cache; then the rounds alternate A, B, A, B, ... and the wall time of each
+run (``wall_time`` of its results.h5, the time loop without start-up) and its cost split are
+printed with the CPU model and the load before and after, and the ratio A/B per round.
+Never run it beside another timing job or on a loaded machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+
+
+def cpu_model() -> str:
+    try:
+        out = subprocess.run(["lscpu"], capture_output=True, text=True).stdout
+        for line in out.splitlines():
+            if line.startswith("Model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return "unknown CPU"
+
+
+def load() -> str:
+    return open("/proc/loadavg").read().split()[0] if os.path.exists("/proc/loadavg") else "?"
+
+
+def checkpoint_time(path: str) -> float:
+    with h5py.File(path, "r") as f:
+        return float(f["clock"].attrs["time"])
+
+
+def run_side(tree: str, case: str, sets: list, ckpt: str, t_end: float, out: Path, threads: int, cache: str):
+    ckpt = str(Path(ckpt).resolve())
+    case = str(Path(case).resolve())
+    cmd = [sys.executable, "-m", "cfddem.cli", "run", case, "--set", f'checkpoint.start_from="{ckpt}"',
+           "--set", f"time.end_time={t_end}", "--set", f"measurements.start_time={t_end}",
+           "--set", "study.compare_without_gas=false", "--set", "output.vtk=false",
+           "--set", "output.plots=false", "--set", "checkpoint.wall_interval=0",
+           "--out", str(out), "--force", "--threads", str(threads)]
+    for s in sets:
+        cmd += ["--set", s]
+    env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+    t0 = time.perf_counter()
+    p = subprocess.run(cmd, cwd=tree, env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    if p.returncode != 0:
+        raise SystemExit(f"run failed in {tree}: {p.stderr.strip().splitlines()[-1] if p.stderr else p.returncode}")
+    with h5py.File(out / "results.h5", "r") as f:
+        meta = dict(f["metadata"].attrs)
+    timings = {k[5:]: float(v) for k, v in meta.items() if k.startswith("time_")}
+    return float(meta.get("wall_time", wall)), timings
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--checkpoint", required=True)
+    ap.add_argument("--duration", type=float, default=0.2)
+    ap.add_argument("--case", default="cases/chute_16rpm")
+    ap.add_argument("--a-tree", default=".")
+    ap.add_argument("--b-tree", default=".")
+    ap.add_argument("--a-set", action="append", default=[])
+    ap.add_argument("--b-set", action="append", default=[])
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--out", default="/tmp/flagship_bench")
+    a = ap.parse_args(argv)
+    t_end = checkpoint_time(a.checkpoint) + a.duration
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    sides = {"A": (a.a_tree, a.a_set), "B": (a.b_tree, a.b_set)}
+    print(f"CPU: {cpu_model()}; {os.cpu_count()} logical CPUs; threads {a.threads}; load {load()}")
+    for name, (tree, sets) in sides.items():
+        print(f"{name}: tree {Path(tree).resolve()}, overrides {sets or 'none'}")
+        run_side(tree, a.case, sets, a.checkpoint, t_end, out / f"warm_{name}", a.threads, f"/tmp/nc_flagship_{name}")
+    rows = []
+    for r in range(a.rounds):
+        res = {}
+        for name, (tree, sets) in sides.items():
+            l0 = load()
+            w, tm = run_side(tree, a.case, sets, a.checkpoint, t_end, out / f"r{r}_{name}", a.threads,
+                             f"/tmp/nc_flagship_{name}")
+            res[name] = w
+            split = ", ".join(f"{k} {v:.1f}" for k, v in sorted(tm.items()) if v > 0.05 and k != "total")
+            print(f"round {r + 1} {name}: {w:.1f} s for {a.duration:g} s of flow ({split}); load {l0} -> {load()}",
+                  flush=True)
+        rows.append(res)
+        print(f"round {r + 1}: A/B = {res['A'] / res['B']:.3f}", flush=True)
+    (out / "flagship.json").write_text(json.dumps({"cpu": cpu_model(), "rounds": rows, "duration": a.duration,
+                                                   "sides": {k: {"tree": str(Path(v[0]).resolve()), "set": v[1]}
+                                                             for k, v in sides.items()}}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
