@@ -326,7 +326,7 @@ class GasBudget:
         a = self.axis
         self._exchange += dt_gas * np.array([fd[a], fp[a], fb[a]], float)
 
-    def close_interval(self, time: float | None = None) -> None:
+    def close_interval(self) -> None:
         """End the open block of steps (for the error bars); nothing if it is empty."""
         if self._acc_t > 0.0:
             self._rows.append((self._acc_t, self._acc.copy(), self._p_last))
