@@ -165,11 +165,20 @@ class Simulation:
         self.measure = self.scene.make_measurements()
         self.budget = self.scene.make_budget()  # the particles' momentum budget, sampled with measure
         self.gas = None
+        self.gas_budget = None
         if case.gas.enabled:
             from .coupling.exchange import build_coupled_gas
 
-            self.gas = build_coupled_gas(case, self.system, cls.gas_domain(case), self.log)
+            domain = cls.gas_domain(case)
+            self.gas = build_coupled_gas(case, self.system, domain, self.log)
             self.gas.force_sink = self.budget
+            if case.measurements.enabled and domain.budget_axis is not None:
+                from .measure.gas_budget import GasBudget
+
+                # the gas's momentum budget over its domain, every gas step from measurements.start_time
+                self.gas_budget = GasBudget(self.gas.gas, axis=domain.budget_axis,
+                                            start_time=case.measurements.start_time,
+                                            side_names=domain.side_names).attach()
         o = case.output
         self.schedules = {
             "series": Schedule(o.series_interval),
@@ -199,6 +208,8 @@ class Simulation:
             st["budget"] = self.budget.get_state()
         if self.gas is not None:
             st["gas"] = self.gas.get_state()
+        if self.gas_budget is not None:
+            st["gas_budget"] = self.gas_budget.get_state()
         scene_state = self.scene.get_state()
         if scene_state:
             st["scene"] = scene_state
@@ -219,6 +230,8 @@ class Simulation:
             self.budget.set_state(st["budget"])
         if self.gas is not None:
             self.gas.set_state(st["gas"])
+        if self.gas_budget is not None and "gas_budget" in st:
+            self.gas_budget.set_state(st["gas_budget"])
         if "scene" in st:
             self.scene.set_state(st["scene"])
 
@@ -438,6 +451,8 @@ class Simulation:
                     self.measure.measure(sys_.time, sys_.pos, sys_.vel, sys_.radius)
                     if self.budget is not None:
                         self.budget.sample(sys_.time, sys_, self.gas)
+                    if self.gas_budget is not None:
+                        self.gas_budget.close_interval()  # a block of the gas budget's error bars
                     sch["measure"].advance(sys_.time, dt)
                     self.timings["measurements"] += _time.perf_counter() - t0
                 outputs()
@@ -577,8 +592,11 @@ class Simulation:
         return row
 
     def _write_budget(self, res) -> None:
+        """The particles' and the gas's momentum budgets (those that have data)."""
         if self.budget is not None and self.budget.n_samples:
             res.write_measurements(self.budget.group, self.budget.results(), self.budget.attrs())
+        if self.gas_budget is not None and self.gas_budget.n_steps:
+            res.write_measurements(self.gas_budget.group, self.gas_budget.results(), self.gas_budget.attrs())
 
     def _write_scene_measurements(self, res) -> None:
         m = self.scene.measurements()

@@ -539,6 +539,7 @@ class CoupledGas:
         source = self._boundary_source()
         # --- 3. gas step ------------------------------------------------------------------
         t0 = _time.perf_counter()
+        t_gas = gas.time  # the start of the gas step (a gas budget integrates the steps it wants)
         info = gas.step(dtg, source=source, drag_K=drag_K, drag_Up=drag_Up)
         self._gas_wall = _time.perf_counter() - t0
         if timings is not None:
@@ -579,6 +580,9 @@ class CoupledGas:
                                   sys_.ext_force, boundary_used=self._has_boundary, store=keep)
             if keep:
                 sink.add_gas(sys_.time, dtg, pos, sys_.held, f["fd_each"], f["fp_each"] + f["fb_each"], Keff, eps_a)
+            gb = gas.budget  # the gas's momentum budget: the particle side of the step it integrated
+            if gb is not None and gb.wants(t_gas):
+                gb.add_exchange(dtg, f["fd"], f["fp"], f["fb"])
             self._last["drag_power"] = f["power"]
             self._last["max_drag_force"] = f["max_magnitude"]
             # both sides of the exchange (momentum received), for conservation checks: the

@@ -26,3 +26,8 @@ class GasDomain:
     speed_scale: float = 0.0
     #: extra lines for ``cfddem check`` (what the boundaries are set to)
     notes: list[str] = field(default_factory=list)
+    #: the axis (0, 1, 2) of the gas's momentum budget over the domain
+    #: (:class:`cfddem.measure.gas_budget.GasBudget`, /measurements/gas_budget), None for none
+    budget_axis: int | None = None
+    #: names of the sides for the budget's table, e.g. ``{"y-": "floor"}``
+    side_names: dict = field(default_factory=dict)

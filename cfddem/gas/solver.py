@@ -188,6 +188,10 @@ class GasSolver:
         self._last_div = 0.0
         self._visc_fail = ""
         self.last_info: GasStepInfo | None = None
+        #: a momentum budget (:class:`cfddem.measure.gas_budget.GasBudget`) or None: for every
+        #: step starting at a time it ``wants``, ``before_step(self, dt, S)`` after the halo fill
+        #: and ``after_step(self, dt, K, U_p)`` at the end (it reads, never writes)
+        self.budget = None
         self.fill_halos()
 
     # --- state setting ------------------------------------------------------------------
@@ -286,6 +290,9 @@ class GasSolver:
             raise CaseError("gas.drag_Up", "needed with drag_K")
         eo, en = self._eps_prev, self.eps.data
         self.fill_halos()
+        hook = self.budget if self.budget is not None and self.budget.wants(self.time) else None
+        if hook is not None:
+            hook.before_step(self, dt, S)
         vel = (self.u.data, self.v.data, self.w.data)
         # --- 1. predictor ---------------------------------------------------------------
         for c in range(3):
@@ -354,6 +361,8 @@ class GasSolver:
         self.time += dt
         self.step_count += 1
         self._last_dt = dt
+        if hook is not None:
+            hook.after_step(self, dt, K, Up)
         cfl = dt * float(rate)
         finite = bool(np.isfinite(cfl) and np.isfinite(pmax))
         bad = "" if finite else self._first_nonfinite()

@@ -69,6 +69,10 @@ class Run:
         self.budget = self.meas.get("momentum_budget", {})
         if int(np.asarray(self.budget.get("n_samples", 0))) == 0:
             self.budget = {}
+        # the gas's momentum budget over its domain (runs with gas), with its attributes (side names)
+        self.gas_budget = read_measurements(h5, with_attrs=True).get("gas_budget", {}) if "gas_budget" in self.meas else {}
+        if int(np.asarray(self.gas_budget.get("n_steps", 0))) == 0:
+            self.gas_budget = {}
         if int(np.asarray(self.chute.get("n_samples", 0))) > 0:
             self.kind = "chute"
         elif self.silo and "mass_flow_rate" in self.meas:
@@ -432,6 +436,9 @@ def compare_runs(a: str | Path, b: str | Path, out: str | Path, labels=(None, No
     if ra.budget and rb.budget:
         tail = _budget_section(runs, out, summary)
         figs["momentum_budget.png"] = ("Streamwise momentum budget of the particles", lambda runs, path: None)
+    for r, tag in zip(runs, ("a", "b")):
+        if r.gas_budget:
+            tail += gas_budget_section(r, summary, tag)
     (out / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=True))
     _write_report(md, runs, figs, out, summary, tail)
     return summary
@@ -540,6 +547,76 @@ def _budget_section(runs, out: Path, summary: dict) -> list[str]:
         summary["budget_residual_relative"] = abs(tots[0]["residual"][0]) / abs(tots[0]["gravity"][0]) \
             if tots[0]["gravity"][0] else math.nan
     _fig_budget(runs, out / "momentum_budget.png")
+    return md
+
+
+GAS_BUDGET_ROWS = {
+    "drag": "reaction to the drag on the particles", "pressure_particles": "reaction to the particles' pressure force",
+    "source": "boundary half-cells (pressure and weight)", "gravity": "gravity", "coriolis": "Coriolis",
+    "centrifugal": "centrifugal", "mass_imbalance": "mass imbalance of the advection form",
+}
+_GAS_SIDE_ROWS = {"pressure": "pressure on", "flux": "momentum flux through", "viscous": "normal viscous stress on",
+                  "shear": "shear on"}
+
+
+def gas_budget_rows(gb) -> list:
+    """``(key, label)`` of the gas budget's terms in its own order (attribute ``terms``), then
+    storage and residual; the sides labelled with the domain's names (attribute ``side_names``)."""
+    at = gb.get("@attrs", {})
+    terms = [t for t in str(at.get("terms", "")).split(",") if t] or [k for k in GAS_BUDGET_ROWS if k in gb]
+    names = dict(kv.split("=", 1) for kv in str(at.get("side_names", "")).split(",") if "=" in kv)
+    rows = []
+    for t in terms:
+        if t in GAS_BUDGET_ROWS:
+            rows.append((t, GAS_BUDGET_ROWS[t]))
+        else:
+            kind, side = t.split("_", 1)
+            nm = names.get(side, side)
+            if kind == "flux" and float(np.asarray(gb.get(t, np.nan))) == 0.0:
+                continue  # a wall: nothing flows through it
+            rows.append((t, f"{_GAS_SIDE_ROWS.get(kind, kind)} {nm}" + (f" ({side})" if side not in nm else "")))
+    return rows + [("storage", "storage dP/dt"), ("residual", "residual")]
+
+
+def gas_budget_section(run, summary: dict, tag: str = "a") -> list[str]:
+    """The gas's budget table of one run (terms with their sizes: mN and % of the largest
+    term), its closure and the check of the drag reaction against the particles; ``summary``
+    gains ``gas_budget_<tag>`` (the terms, N) and ``gas_budget_residual_relative_<tag>``."""
+    gb = run.gas_budget
+    at = gb.get("@attrs", {})
+    rows = gas_budget_rows(gb)
+    val = {k: float(np.asarray(gb.get(k, np.nan))) for k, _ in rows}
+    big = max((abs(v) for k, v in val.items() if k not in ("storage", "residual") and math.isfinite(v)), default=0.0)
+    ax = at.get("axis", "z")
+    md = [f"## Momentum budget of the gas ({run.label})", "",
+          f"The whole gas domain, force on the gas along {ax} in mN, time-averaged over the {int(gb['n_steps'])} gas "
+          f"steps from t = {float(gb['t_first']):.4g} to {float(gb['t_last']):.4g} s; errors: block averages "
+          f"({int(at.get('n_blocks', 10))} blocks); planes of a wall or an inlet: the first cell centre, of an "
+          "outlet: half a cell outside (docs/gas.md, 'Momentum budget').", "",
+          "| term | force [mN] | of the largest term |", "|---|---|---|"]
+    for k, name in rows:
+        v, e = val[k], float(np.asarray(gb.get(f"{k}_err", np.nan)))
+        err = f" ± {1e3 * e:.2g}" if math.isfinite(e) and k != "residual" else ""
+        md.append(f"| {name} | {1e3 * v:.4g}{err} | {100 * v / big:+.3g} % |" if big else f"| {name} | {1e3 * v:.4g} | |")
+    md.append("")
+    pd = float(np.asarray(gb.get("particle_drag", np.nan)))
+    line = (f"The budget closes to {float(gb['residual_relative']):.1e} of the largest term (round-off: the terms are "
+            f"the solver's own update, regrouped). The drag reaction {1e3 * val['drag']:.4g} mN is minus the drag on all "
+            f"particles {1e3 * pd:.4g} mN")
+    if run.budget and "drag_all" in run.budget:
+        free = float(np.asarray(run.budget["drag_all"]))
+        line += (f"; of this the free particles (the particle budget's total) take {1e3 * free:.4g} mN and the held "
+                 f"feed particles {1e3 * (pd - free):.4g} mN")
+    line += "."
+    mi = val.get("mass_imbalance", 0.0)
+    if big and abs(mi) > 0.01 * big:
+        line += (f" The advection form's mass imbalance (u times the control volumes' mass imbalance between the "
+                 f"step's fluxes and the porosity change) adds {1e3 * mi:.3g} mN, "
+                 f"{100 * abs(mi) / abs(val['drag']):.3g} % of the drag reaction: momentum the gas solver's advection does not "
+                 "conserve where the porosity's rate of change changes from one gas step to the next." if val.get("drag") else "")
+    md += [line, ""]
+    summary[f"gas_budget_{tag}"] = dict(val)
+    summary[f"gas_budget_residual_relative_{tag}"] = float(np.asarray(gb["residual_relative"]))
     return md
 
 

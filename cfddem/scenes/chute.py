@@ -244,7 +244,9 @@ class ChuteScene(Scene):
             pressure=lambda x, y, z: rho * (g[0] * x + g[1] * y + g[2] * (z - grid.origin[2] - grid.lengths[2])),
             speed_scale=max(vin, wind, 1e-12),
             notes=[f"gas inlet velocity {vin:.4g} m/s; lid: {gcfg.lid} (max cross-wind {wind:.3g} m/s); "
-                   f"min porosity: computed at run time (cells below 0.3 are counted in the end-of-run summary)"])
+                   f"min porosity: computed at run time (cells below 0.3 are counted in the end-of-run summary)"],
+            budget_axis=2, side_names={"x-": "side wall x-", "x+": "side wall x+", "y-": "floor", "y+": f"lid ({gcfg.lid})",
+                                       "z-": "inlet", "z+": "outlet"})
 
     @classmethod
     def plots(cls, results_h5, out_dir) -> list:

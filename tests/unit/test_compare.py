@@ -35,6 +35,13 @@ def fake_run(folder, speed, gas, wall, rpm=16.0):
                                            "z": np.linspace(-0.097, 0.797, 150)})
         res.write_metadata(wall_time=wall, time_particles=0.8 * wall, time_gas=0.15 * wall if gas else 0.0,
                            time_output=0.05 * wall)
+        if gas:  # the gas's budget as GasBudget writes it (terms in N; a few of them)
+            terms = {"drag": 1.5e-3, "gravity": 1.8e-2, "pressure_z-": -2.0e-2, "flux_z-": 1.2e-3, "shear_y-": -2.0e-4}
+            gb = dict(terms, storage=5e-4, residual=-3e-15, residual_relative=1.5e-13, particle_drag=-1.5e-3,
+                      n_steps=np.int64(313), t_first=0.2, t_last=0.3)
+            gb.update({f"{k}_err": 1e-5 for k in terms})
+            res.write_measurements("gas_budget", gb, {"axis": "z", "n_blocks": 10, "terms": ",".join(terms),
+                                                      "side_names": "y-=floor,z-=inlet"})
         if gas:  # as Simulation stores CoupledGas.run_stats()
             res.write_metadata(gas_steps=2188, gas_cg_iterations_mean=6.61, gas_cg_iterations_max=7,
                                gas_pressure_residual_max=2.37e-7, gas_mass_defect_max=2.88e-9, gas_cfl_max=0.475)
@@ -65,6 +72,15 @@ def test_compare_report_and_summary(tmp_path):
     assert "gas solver (no gas)" not in md
     h = (out / "report.html").read_text()
     assert h.count("data:image/png;base64,") == 6
+    # the gas's budget table (run B only), sizes in mN and against the largest term (20 mN)
+    assert "## Momentum budget of the gas (with gas)" in md
+    assert "| reaction to the drag on the particles | 1.5 ± 0.01 | +7.5 % |" in md
+    assert "| pressure on inlet (z-) | -20 ± 0.01 | -100 % |" in md
+    assert "| shear on floor (y-) | -0.2 ± 0.01 | -1 % |" in md
+    assert "| storage dP/dt | 0.5 | +2.5 % |" in md
+    assert "closes to 1.5e-13 of the largest term" in md
+    assert s["gas_budget_b"]["shear_y-"] == pytest.approx(-2e-4) and "gas_budget_a" not in s
+    assert s["gas_budget_residual_relative_b"] == pytest.approx(1.5e-13)
 
 
 def test_compare_refuses_runs_without_measurements(tmp_path):

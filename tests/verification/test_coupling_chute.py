@@ -123,3 +123,8 @@ def test_chute_resume_bit_identical(root, tmp_path):
                  (ref.system.pos, res.system.pos), (ref.system.vel, res.system.vel),
                  (ref.system.ext_force, res.system.ext_force)):
         assert np.array_equal(x, y)
+    # the gas's momentum budget (its state is in the checkpoint) continues exactly
+    ga, gb = ref.gas_budget.results(), res.gas_budget.results()
+    assert int(ga["n_steps"]) == 20 and set(ga) == set(gb)
+    for k in ga:
+        assert np.array_equal(ga[k], gb[k], equal_nan=True), k
