@@ -227,6 +227,16 @@ class MomentumBudget:
         err2 = block_error(sampled, self.n_blocks) ** 2 + out["drag_err"] ** 2 + out["pressure_err"] ** 2
         out["residual_err"] = np.sqrt(err2)
         out["storage"] = storage
+        # its error: the scatter of the same difference over the blocks of the window
+        nb = min(self.n_blocks, len(t) // 2)
+        if nb >= 2:
+            e = np.linspace(0, len(t), nb + 1).astype(int)
+            rates = np.array([(S["momentum"][b - 1] - S["momentum"][a]) / (t[b - 1] - t[a])
+                              for a, b in zip(e[:-1], e[1:]) if t[b - 1] > t[a]])
+            out["storage_err"] = rates.std(axis=0, ddof=1) / np.sqrt(len(rates)) if len(rates) >= 2 \
+                else np.full(self.n_bins, np.nan)
+        else:
+            out["storage_err"] = np.full(self.n_bins, np.nan)
         out["t_first"] = np.float64(t[0])
         out["t_last"] = np.float64(t[-1])
         out["gas_time"] = np.float64(self._gas_t)
