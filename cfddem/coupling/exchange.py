@@ -571,20 +571,10 @@ class CoupledGas:
         self.n_couplings += 1
         # --- 4.-6. forces on the particles -------------------------------------------------
         if n:
-            G, Gb, solid = self._pressure_fields()
-            # writes system.ext_force = fd + fp + fb directly (a contiguous view of its store);
-            # a momentum budget in its window also gets the per-particle split (force_sink)
-            sink = self.force_sink
-            keep = sink is not None and sink.wants_gas(sys_.time)
-            f = plan.apply_forces(gas.u.interior, gas.v.interior, gas.w.interior, vel, Keff, vol, G, Gb,
-                                  sys_.ext_force, boundary_used=self._has_boundary, store=keep)
-            if keep:
-                sink.add_gas(sys_.time, dtg, pos, sys_.held, f["fd_each"], f["fp_each"] + f["fb_each"], Keff, eps_a)
+            f, solid = self._apply_forces(plan, pos, vel, Keff, vol, eps_a)
             gb = gas.budget  # the gas's momentum budget: the particle side of the step it integrated
             if gb is not None and gb.wants(t_gas):
                 gb.add_exchange(dtg, f["fd"], f["fp"], f["fb"])
-            self._last["drag_power"] = f["power"]
-            self._last["max_drag_force"] = f["max_magnitude"]
             # both sides of the exchange (momentum received), for conservation checks: the
             # particle and gas entries of each pair must sum to zero
             gas_drag = np.empty(3)
@@ -615,17 +605,26 @@ class CoupledGas:
         self.n_couplings += 1
         gas.time += self.dt_gas
         if sys_.n:
-            G, Gb, _ = self._pressure_fields()
-            sink = self.force_sink
-            keep = sink is not None and sink.wants_gas(sys_.time)
-            f = plan.apply_forces(gas.u.interior, gas.v.interior, gas.w.interior, vel, Keff, vol, G, Gb,
-                                  sys_.ext_force, boundary_used=self._has_boundary, store=keep)
-            if keep:
-                sink.add_gas(sys_.time, self.dt_gas, np.ascontiguousarray(sys_.pos), sys_.held, f["fd_each"],
-                             f["fp_each"] + f["fb_each"], Keff, eps_a)
-            self._last["drag_power"] = f["power"]
-            self._last["max_drag_force"] = f["max_magnitude"]
+            self._apply_forces(plan, np.ascontiguousarray(sys_.pos), vel, Keff, vol, eps_a)
         return None
+
+    def _apply_forces(self, plan, pos, vel, Keff, vol, eps_a):
+        """Steps 4-6 for the particles: ``system.ext_force = fd + fp + fb`` written directly
+        (a contiguous view of its store); a momentum budget in its window (``force_sink``)
+        also gets the per-particle split.  Returns (the apply_forces dict, the solid part of
+        the pressure exchange)."""
+        sys_, gas = self.system, self.gas
+        G, Gb, solid = self._pressure_fields()
+        sink = self.force_sink
+        keep = sink is not None and sink.wants_gas(sys_.time)
+        f = plan.apply_forces(gas.u.interior, gas.v.interior, gas.w.interior, vel, Keff, vol, G, Gb,
+                              sys_.ext_force, boundary_used=self._has_boundary, store=keep)
+        if keep:
+            sink.add_gas(sys_.time, self.dt_gas, pos, sys_.held, f["fd_each"], f["fp_each"] + f["fb_each"], Keff,
+                         eps_a)
+        self._last["drag_power"] = f["power"]
+        self._last["max_drag_force"] = f["max_magnitude"]
+        return f, solid
 
     def _left_the_gas(self, pos):
         """Boolean mask of the particles whose centre lies beyond a side with particle rule
