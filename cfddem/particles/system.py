@@ -133,6 +133,11 @@ class ParticleSystem:
         # previous step's gather; only left pending when a step() call stops on a bad flag)
         self._pending_m2 = -1.0
         self.n_rebuilds = 0
+        # particles that came to an analytic wall from its back (no contact, see
+        # integrate.gather_walls_kick): the total, and the events not yet reported
+        # (step, particle id, wall name, count in that evaluation) for the caller to log
+        self.wall_back_count = 0
+        self.wall_back_events: list[tuple[int, int, str, int]] = []
         self._fw = np.zeros((max(self.nw, 1), 3))
         self._tw = np.zeros((max(self.nw, 1), 3))
         # wall motion: kind saved while a wall is switched off; walls with v != 0 are translated
@@ -424,7 +429,7 @@ class ParticleSystem:
                                cur["hist"], cur["pf"], cur["pr"], self.dt, dt_hist)
         g, om, ap = self.gravity, self.frame_omega, self.axis_point
         drift_next = drift_next and max(ov_pp, ov_m) <= self.max_overlap_ratio_limit and not self._mesh_over
-        bad, ov_w, m2 = (it.gather_walls_kick_s if ser else it.gather_walls_kick)(
+        bad, ov_w, m2, nback, kback = (it.gather_walls_kick_s if ser else it.gather_walls_kick)(
             self.n, self._pos, self._vel, self._omega, self._force, self._torque, self._radius,
             self._mass, self._inertia, self._ext_force, self._ext_torque, self._has_ext, cur["pf"], cur["pr"],
             self._has_roll, cur["first_start"], cur["second_start"], cur["second_list"],
@@ -435,6 +440,12 @@ class ParticleSystem:
             self._plo, self._ref, self._held)
         self._last_ov = max(ov_pp, ov_w, ov_m)
         self._pending_m2 = m2 if drift_next else -1.0
+        if nback:
+            i, w = divmod(int(kback) - 1, self.nw)
+            self.wall_back_count += int(nback)
+            if len(self.wall_back_events) < 1000:  # the caller drains them after each step() call
+                self.wall_back_events.append((self.step_count + (1 if kick else 0), int(self._ids[i]),
+                                              self.walls[w].name or f"#{w}", int(nback)))
         return bad
 
     def _refresh(self):
@@ -877,7 +888,7 @@ class ParticleSystem:
         st: dict = dict(n=n, time=self.time, step_count=self.step_count, next_id=self._next_id,
                         npairs=self._npairs, n_built=self._n_built, skin_built=self._skin_built,
                         need_rebuild=int(self._need_rebuild), forces_stale=int(self._forces_stale),
-                        last_ov=self._last_ov, pending_m2=self._pending_m2,
+                        last_ov=self._last_ov, pending_m2=self._pending_m2, wall_back=self.wall_back_count,
                         w_geom=self._wgeom.copy(), w_ref=self._wref.copy())
         for name in _ROW_ARRAYS if self.nm else _PARTICLE_ARRAYS + _WALL_ARRAYS:
             st["p_" + name] = getattr(self, "_" + name)[:n].copy()
@@ -930,6 +941,7 @@ class ParticleSystem:
         self._forces_stale = bool(state["forces_stale"])
         self._last_ov = float(state["last_ov"])
         self._pending_m2 = float(state["pending_m2"])
+        self.wall_back_count = int(state.get("wall_back", 0))  # checkpoints written before the count: 0
         if "w_geom" in state:  # moved or switched walls
             self._wgeom[...] = np.asarray(state["w_geom"]).reshape(self._wgeom.shape)
             self._wref[...] = np.asarray(state["w_ref"]).reshape(self._wref.shape)
