@@ -186,7 +186,51 @@ def shear_walls(case):
                               dict(rings)))
         walls.append(WallSpec("ring_ledge", "annulus", np.array([-g.off, g.Hb, 0.0]), -ey, None, (g.R, g.R + t),
                               dict(rings)))
+    # the filling mould: the shear ring continued up to a spacing above the fill lattice, removed
+    # when the settled bed is scraped (module docstring)
+    hh = mould_half_height(case, g)
+    walls.append(WallSpec("mould", "cylinder", np.array([-g.off, g.Hb + g.Hs + hh, 0.0]), ey, None, (g.R, hh),
+                          dict(rings), inside=True))
     return walls
+
+
+FILL_FRACTION = 0.6  # solid fraction of the settled fill assumed by cfddem check's estimate
+
+
+def fill_estimate(case) -> dict:
+    """Heights (m) of the fill for ``cfddem check``: the lattice top, the mould top, the bed
+    height the fill's solid volume gives at a solid fraction :data:`FILL_FRACTION` over the
+    cell's cross-section above the floor, the shear ring's top and the scrape level."""
+    s = case.resolved["shear"]
+    p = case.particles
+    g = ShearGeometry(s, p.diameter)
+    sites, spacing, shape = fill_lattice(case)
+    v1 = math.pi / 6.0 * p.diameter**3 if shape is None else shape.mass / p.density
+    n = len(sites)
+    return {"n": n, "what": "spheres" if shape is None else f"{p.clump} clumps",
+            "lattice_top": float(sites[:, 1].max()) + 0.5 * spacing,
+            "mould_top": g.Hb + g.Hs + 2 * mould_half_height(case, g),
+            "bed": g.y_floor + n * v1 / (FILL_FRACTION * g.area), "ring_top": g.Hb + g.Hs, "scrape": g.y_scrape}
+
+
+def mould_half_height(case, g: ShearGeometry) -> float:
+    """Half height of the mould: from the shear ring's top to one spacing above the fill lattice
+    (at least one particle diameter)."""
+    sites, spacing, _ = fill_lattice(case)
+    return 0.5 * max(float(sites[:, 1].max()) + spacing - (g.Hb + g.Hs), g.d)
+
+
+def fill_lattice(case) -> tuple[np.ndarray, float, object]:
+    """The fill's lattice sites (:func:`fill_sites` with the case's keys), its particle spacing
+    (the diameter, or a clump's bounding diameter) and the clump shape (None for spheres)."""
+    from ..particles.clumps import particle_shape
+
+    s = case.resolved["shear"]
+    p = case.particles
+    g = ShearGeometry(s, p.diameter)
+    shape = particle_shape(p)
+    spacing = p.diameter if shape is None else 2 * float(np.max(np.linalg.norm(shape.offsets, axis=1) + shape.radii))
+    return fill_sites(g, s["n_particles"], spacing, s["lattice_gap"], s["lattice_jitter"], p.seed), spacing, shape
 
 
 def fill_sites(g: ShearGeometry, n: int, spacing: float, gap: float, jitter: float, seed: int) -> np.ndarray:
@@ -229,6 +273,25 @@ class ShearCellScene(Scene):
     @classmethod
     def has_particles(cls, case) -> bool:
         return True
+
+    @classmethod
+    def describe(cls, case) -> list[str]:
+        """The fill: lattice top, the bed height a settled solid fraction of 0.6 gives, against
+        the shear ring's top and the scrape level (:func:`fill_estimate`)."""
+        f = fill_estimate(case)
+        mm = 1e3
+        line = (f"shear cell fill: {f['n']} {f['what']} on a lattice up to y = {f['lattice_top'] * mm:.3g} mm, held by "
+                f"the mould (the shear ring continued to {f['mould_top'] * mm:.3g} mm, lifted at the scraping); settled "
+                f"(solid fraction {FILL_FRACTION:g}) the bed reaches about {f['bed'] * mm:.3g} mm against the shear ring's "
+                f"top {f['ring_top'] * mm:.3g} mm and the scrape level {f['scrape'] * mm:.3g} mm")
+        if f["bed"] < f["scrape"]:
+            line += " (WARNING: below the scrape level: raise shear.n_particles)"
+        elif f["bed"] > f["ring_top"]:
+            line += " (above the ring: the mould holds the overfill, about " \
+                    f"{100 * (f['bed'] - f['scrape']) / f['bed']:.0f} % of the fill is scraped)"
+        else:
+            line += " (OK)"
+        return [line]
 
     @classmethod
     def expected_particles(cls, case) -> int:
@@ -321,14 +384,8 @@ class ShearCellScene(Scene):
 
     # ------------------------------------------------------------------ hooks
     def start(self) -> None:
-        from ..particles.clumps import particle_shape
-
-        case = self.case
-        p = case.particles
-        shape = particle_shape(p)
-        spacing = p.diameter if shape is None else 2 * float(np.max(np.linalg.norm(shape.offsets, axis=1)
-                                                                    + shape.radii))
-        pos = fill_sites(self.g, self.s["n_particles"], spacing, self.s["lattice_gap"], self.s["lattice_jitter"], p.seed)
+        p = self.case.particles
+        pos, _, shape = fill_lattice(self.case)
         if shape is None:
             self.sys.add_particles(pos, np.zeros(3), 0.5 * p.diameter, p.density)
         else:
@@ -404,6 +461,8 @@ class ShearCellScene(Scene):
 
         sys_ = self.sys
         g = self.g
+        sys_.set_wall_active("mould", False)  # lifted off: what it held is above the scrape level
+        settled_top = float(np.max(sys_.pos[:, 1] + sys_.radius))
         top = sys_.pos[:, 1] + sys_.radius > g.y_scrape
         k, m = sys_.remove_particles(top) if top.any() else (0, 0.0)
         self.sim.counters["count_out"] += k
@@ -432,10 +491,12 @@ class ShearCellScene(Scene):
         self._apply_load(t)
         self.phase = "consolidate"
         self.fill_info = {"kinetic_energy_per_particle": ke, "removed": k, "removed_mass": m, "bed_top": bed_top,
+                          "settled_top": settled_top,
                           "lid_spheres": len(c), "lid_mass": shape.mass, "time": t}
-        self.sim.log.info("shear cell: settled at t = %.4g s (kinetic energy per particle %.3g J); scraped %d "
+        self.sim.log.info("shear cell: settled at t = %.4g s (kinetic energy per particle %.3g J, bed top %.4g m, "
+                          "mould lifted); scraped %d "
                           "particles above y = %.4g m; lid of %d spheres (%.4g kg) placed at y = %.4g m; load %.4g N "
-                          "ramps over %.3g s", t, ke, k, g.y_scrape, len(c), shape.mass, y,
+                          "ramps over %.3g s", t, ke, settled_top, k, g.y_scrape, len(c), shape.mass, y,
                           self.s["normal_stress"] * g.area, self.s["load_ramp_time"])
 
     def _start_shear(self, t: float) -> None:
