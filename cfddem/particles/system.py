@@ -566,9 +566,35 @@ class ParticleSystem:
             tc = min(tc, w.contact.collision_time(mmin, rmin, v))
         return tc
 
+    def _stable_dt(self) -> float:
+        """The stable step of velocity Verlet on one contact (:func:`cfddem.stability.contact_step_limit`),
+        the smallest over the particle-particle law and the walls, at the fastest particle's
+        speed (at least 1 mm/s); inf when no law gives one."""
+        from cfddem.stability import contact_step_limit
+
+        if self.n == 0:
+            return math.inf
+        mmin = float(self.mass.min())
+        rmin = float(self.radius.min())
+        sp = np.sqrt(np.sum(self.vel**2, axis=1))
+        sp = sp[np.isfinite(sp)]
+        v = max(float(sp.max()) if sp.size else 0.0, 1e-3)
+        lim = [contact_step_limit(self.pp, 0.5 * mmin, 0.5 * rmin, v)]
+        lim += [contact_step_limit(w.contact, mmin, rmin, v) for w in self.walls + self.meshes]
+        return min((x for d in lim for x in d.values()), default=math.inf)
+
     def _dt_hint(self) -> str:
         tc = self._min_tc()
-        return f"time step too large for this stiffness: dt = {self.dt / (tc / 20):.2g} t_c/20"
+        text = f"time step too large for this stiffness: dt = {self.dt / (tc / 20):.2g} t_c/20"
+        dts = self._stable_dt()
+        if self.dt <= 0.5 * dts:
+            why = (f"{self.wall_back_count} particle(s) came to a wall from its back in this run: particles "
+                   "left the region the walls enclose" if self.wall_back_count else
+                   "look for particles inserted into each other or into a wall, a wall moved into particles, "
+                   "or a particle leaving the walls' region")
+            text = (f"NOT the time step: dt = {self.dt:.3g} s is {self.dt / dts:.2g} of the stable step of one "
+                    f"contact ({dts:.3g} s at the fastest particle's speed); {why}")
+        return text
 
     def _nan_status(self) -> StepStatus:
         i = it.first_bad(self.n, self._pos, self._vel, self._omega)

@@ -12,6 +12,7 @@ import pytest
 
 from cfddem.particles import HertzMindlinContact, ParticleSystem
 from cfddem.particles.walls import AnnulusWall, PlaneWall, RectangleWall
+from cfddem.stability import contact_step_limit
 
 R, RHO = 1.9e-3, 950.0  # the thesis's spheres (blending.md §1)
 M = RHO * 4.0 / 3.0 * math.pi * R**3
@@ -97,3 +98,27 @@ def test_contact_pushed_past_the_face_from_the_front_is_kept():
     assert ymin < -0.1 * R  # the centre went past the face, in contact
     assert s.vel[0, 1] == pytest.approx(0.9 * 3.0, rel=0.05)  # out again at e v
     assert s.wall_back_count == 0
+
+
+def test_overlap_stop_at_a_small_step_does_not_blame_the_time_step():
+    """The overlap stop's diagnosis blamed the time step whatever it was (the issue's run: "time
+    step too large", at 0.2 of the stable step).  Two spheres placed 60 % of a radius into each
+    other at dt = 2e-6 s (0.2 of the one-contact stable step): the message says it is not the time
+    step and names the stable step.  Two spheres meeting at 60 m/s with dt = 2e-5 s (5 times the
+    stable step at that speed) overlap 0.6 R in one step: the time step stays the cause."""
+    for dt, blames in ((2e-6, False), (2e-5, True)):
+        s = ParticleSystem(pp=LAW, walls=[], dt=dt)
+        if blames:
+            s.add_particles(np.array([[0.0, 0.0, 0.0], [2 * R, 0.0, 0.0]]),
+                            np.array([[30.0, 0.0, 0.0], [-30.0, 0.0, 0.0]]), R, RHO)
+        else:
+            s.add_particles(np.array([[0.0, 0.0, 0.0], [1.4 * R, 0.0, 0.0]]), np.zeros(3), R, RHO)
+        st = s.step(1)
+        assert not st.ok and st.flag == "overlap"
+        assert ("NOT the time step" not in st.message) == blames, st.message
+        if not blames:
+            # the tangential mode of the pair, linearised at the speed the spheres now have
+            v = float(np.max(np.linalg.norm(s.vel, axis=1)))
+            dts = float(st.message.split("stable step of one contact (")[1].split(" s")[0])
+            assert dts == pytest.approx(contact_step_limit(LAW, M / 2, R / 2, v)["tangential"], rel=2e-3)
+            assert contact_step_limit(LAW, M / 2, R / 2, 1.0)["tangential"] == pytest.approx(9.89e-6, rel=1e-3)
