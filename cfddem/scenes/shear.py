@@ -18,6 +18,12 @@ Walls (named; contact parameters ``contact.particle_wall`` with the overrides of
 - wall-friction variant (``variant = "wall"``): no base ring and no bottom; the sample sits in
   the shear ring on ``plate``, a flat plane at y = H_b (``[shear.plate]`` friction): the shear
   force then measures wall friction.
+- ``mould``: the filling mould, the inside of the shear ring continued from its top to one
+  particle spacing above the fill lattice (:func:`mould_half_height`); it holds an overfill
+  that settles above the ring and is switched off when the bed is scraped.  Without it the
+  overfill spilled over the ring's rim and a particle that fell onto the back of
+  ``ring_ledge`` was thrown out (issue #22; the engine now ignores such back-of-wall contacts
+  and reports them).
 
 Ring offset (``ring_offset``, 3 mm): as in a Jenike tester the shear ring starts displaced by
 the offset AGAINST the shear direction (its axis at x = -offset) and travels ``shear_distance``
@@ -37,9 +43,9 @@ Phases:
 
 1. fill: ``n_particles`` spheres (or ``particles.clump`` pellets, random orientations) on a
    jittered cubic lattice inside the disc common to both rings (seeded by ``particles.seed``),
-   dropped under gravity; from ``fill_time`` on, the first check where the kinetic energy per
-   particle is below ``settle_energy`` ends the fill: particles (clumps) reaching above the
-   scrape level y_s = H_b + H_s - lid sphere diameter - lid_clearance are removed (the
+   dropped under gravity inside the rings and the mould; from ``fill_time`` on, the first check
+   where the kinetic energy per particle is below ``settle_energy`` ends the fill: the mould is
+   lifted, particles (clumps) reaching above the scrape level y_s = H_b + H_s - lid sphere diameter - lid_clearance are removed (the
    "scraping off" of a Jenike test) and the lid is placed on the bed.
 2. consolidation: the load ramps up; after at least ``consolidate_time`` and once the lid's
    vertical speed is below ``lid_settle_speed`` the shear starts.
