@@ -122,3 +122,32 @@ def test_overlap_stop_at_a_small_step_does_not_blame_the_time_step():
             dts = float(st.message.split("stable step of one contact (")[1].split(" s")[0])
             assert dts == pytest.approx(contact_step_limit(LAW, M / 2, R / 2, v)["tangential"], rel=2e-3)
             assert contact_step_limit(LAW, M / 2, R / 2, 1.0)["tangential"] == pytest.approx(9.89e-6, rel=1e-3)
+
+
+def test_back_of_wall_events_are_thread_independent():
+    """40 spheres dropped around the ledges, 22 of them onto the back of ring_ledge: the parallel
+    kernels on 2 threads give the same positions, velocities, count and events as the serial
+    twins."""
+    import numba
+
+    def run(parallel):
+        s = ParticleSystem(pp=LAW, walls=_ledges(), dt=DT, gravity=(0.0, -9.81, 0.0))
+        if parallel:
+            s.serial_below = 0
+        rng = np.random.default_rng(1)
+        th = np.linspace(0.0, 2 * np.pi, 41)[:-1]
+        rr = rng.uniform(0.0478, 0.0502, 40)
+        s.add_particles(np.c_[rr * np.cos(th), 0.004 + 0.004 * rng.uniform(size=40), rr * np.sin(th)],
+                        np.zeros(3), R, RHO)
+        assert s.step(30000).ok
+        return s
+
+    n0 = numba.get_num_threads()
+    numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
+    try:
+        a, b = run(True), run(False)
+    finally:
+        numba.set_num_threads(n0)
+    assert a.wall_back_count == b.wall_back_count == 22
+    assert np.array_equal(a.pos, b.pos) and np.array_equal(a.vel, b.vel)
+    assert a.wall_back_events == b.wall_back_events
