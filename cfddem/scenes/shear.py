@@ -216,7 +216,8 @@ def fill_estimate(case) -> dict:
     return {"n": n, "what": "spheres" if shape is None else f"{p.clump} clumps",
             "lattice_top": float(sites[:, 1].max()) + 0.5 * spacing,
             "mould_top": g.Hb + g.Hs + 2 * mould_half_height(case, g),
-            "bed": g.y_floor + n * v1 / (FILL_FRACTION * g.area), "ring_top": g.Hb + g.Hs, "scrape": g.y_scrape}
+            "floor": g.y_floor, "bed": g.y_floor + n * v1 / (FILL_FRACTION * g.area), "ring_top": g.Hb + g.Hs,
+            "scrape": g.y_scrape}
 
 
 def mould_half_height(case, g: ShearGeometry) -> float:
@@ -294,7 +295,7 @@ class ShearCellScene(Scene):
             line += " (WARNING: below the scrape level: raise shear.n_particles)"
         elif f["bed"] > f["ring_top"]:
             line += " (above the ring: the mould holds the overfill, about " \
-                    f"{100 * (f['bed'] - f['scrape']) / f['bed']:.0f} % of the fill is scraped)"
+                    f"{100 * (f['bed'] - f['scrape']) / (f['bed'] - f['floor']):.0f} % of the fill is scraped)"
         else:
             line += " (OK)"
         return [line]
