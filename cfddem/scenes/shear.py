@@ -481,11 +481,18 @@ class ShearCellScene(Scene):
             self.sim.log.warning("shear cell: the settled bed (top %.4g m) is more than 3 d below the scrape level "
                                  "%.4g m: raise shear.n_particles", bed_top, g.y_scrape)
         c = lid_disc(g.R - g.clear, g.r_lid)
+        y = bed_top + g.r_lid + 0.05 * g.d
+        # the lid (centred on the shear ring) reaching into the base ring: with the ring offset
+        # larger than the lid's clearance its spheres would sit in the base ring's wall
+        out = float(np.max(np.hypot(c[:, 0] + self._ring_x(), c[:, 2]))) + g.r_lid - g.R
+        if not g.wall and y - g.r_lid < g.y_shear and out > 0.0:
+            raise RunError(f"shear cell: the settled bed (top {bed_top:.4g} m) puts the lid's bottom below the shear "
+                           f"plane ({g.y_shear:.4g} m): the lid, centred on the shear ring, would reach {out * 1e3:.3g} mm "
+                           f"into the base ring's wall; raise shear.n_particles (cfddem check estimates the bed height)")
         dens = self.s["lid_density"]
         shape = ClumpShape.from_spheres(c, g.r_lid, dens, name="lid")
         # the lid's normal in its body frame
         self._lid_normal_body = shape.frame.T @ np.array([0.0, 1.0, 0.0])
-        y = bed_top + g.r_lid + 0.05 * g.d
         bid = sys_.add_clumps(shape, [[self._ring_x(), y, 0.0]])
         self.lid_bid = int(bid[0])
         cl = sys_.clumps

@@ -73,3 +73,18 @@ def test_issue_22_full_command(tmp_path, one_numba_thread):
     assert sim.scene.fill_info["settled_top"] > 0.029  # above the shear ring's top
     s, m = _check_run(sim, summary, tmp_path / "out")
     assert 0.2 < float(m["bulk_friction"]) < 1.0
+
+
+def test_bed_below_the_shear_plane_stops_naming_the_lid(tmp_path, one_numba_thread):
+    """A fill too small for the cell (40 spheres in the 40 mm cell of the thesis's parameters:
+    a single layer, 3.8 mm, under the 8 mm shear plane) used to place the lid, centred on the offset
+    shear ring, partly inside the base ring's wall, and the run stopped on an overlap of 0.75 R
+    blamed on the time step.  It now stops at the lid's placement, saying why."""
+    from cfddem.errors import RunError
+
+    ov = [o for o in SMALL if not o.startswith("shear.n_particles")] + ["shear.n_particles=40"]
+    case = load_case("cases/shear_jenike", overrides=THESIS + ov)
+    sim = Simulation(case, tmp_path / "out", echo=False, progress=False, threads=1)
+    with pytest.raises(RunError, match=r"lid's bottom below the shear plane \(0\.008 m\).*into the base ring's wall"):
+        sim.run()
+    assert sim.scene.phase == "fill" and sim.system.clumps is None
