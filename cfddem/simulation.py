@@ -440,6 +440,7 @@ class Simulation:
                 st = self.gas.advance(n, self.timings) if self.gas is not None else sys_.step(n)
                 other = self.timings["gas"] + self.timings["coupling"] - other0
                 self.timings["particles"] += _time.perf_counter() - t0 - other
+                self._report_wall_back()
                 if not st.ok:
                     raise RunError(st.message)
                 self._feed_and_drain()
@@ -516,6 +517,18 @@ class Simulation:
             signal.signal(sig, h)
 
     # ------------------------------------------------------------------------------- helpers
+    def _report_wall_back(self) -> None:
+        """Log the particles that came to a one-sided wall from its back since the last call
+        (the engine gives them no contact there: :func:`cfddem.particles.integrate.gather_walls_kick`)."""
+        ev = self.system.wall_back_events
+        if not ev:
+            return
+        for step, pid, wall, k in ev:
+            self.log.warning("step %d: particle id %d came to wall '%s' from its back (%d particle(s) in that step): "
+                             "it is outside the region the walls enclose (over a rim or through a gap); one-sided "
+                             "walls give no contact there", step, pid, wall, k)
+        ev.clear()
+
     def _feed_and_drain(self) -> None:
         t0 = _time.perf_counter()
         sys_ = self.system
@@ -632,6 +645,7 @@ class Simulation:
                              mass_in=self.inlet.mass_inserted if self.inlet is not None else 0.0,
                              mass_out=self.counters["mass_out"], message=message, timings=timings)
         res.write_metadata(status=status, message=message, wall_time=wall, steps=s.step_count,
+                           wall_back_events=s.wall_back_count,
                            **{f"time_{k}": v for k, v in timings.items()})
         if self.gas is not None:
             res.write_metadata(**self.gas.run_stats())
@@ -642,6 +656,9 @@ class Simulation:
                       ", ".join(f"{k} {v:.1f} s" for k, v in timings.items()))
         if message:
             self.log.info(message)
+        if s.wall_back_count:
+            self.log.warning("%d time(s) a particle came to a wall from its back in this run (no contact there): "
+                             "particles left the region the walls enclose", s.wall_back_count)
         if self.gas is not None:
             line = self.gas.run_summary()
             if line:

@@ -268,8 +268,19 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
     (the same operations as :func:`kick_drift`, so results do not depend on the fusion; it
     saves one pass over the particles and one kernel launch per step).
 
+    Back of a wall: a wall contact that would *start* (the particle was not touching that wall
+    at the previous evaluation, ``won[i, w] == 0``) with an overlap above the radius, i.e. with
+    the centre behind the face of a plane, rectangle or annulus, is not a contact: the sphere
+    reached the one-sided wall from its back (from outside the region the walls enclose, e.g.
+    over the rim of a ring).  Without this rule the contact switched on at an overlap up to 2 r
+    and threw the particle out in one step.  The particle is marked behind that wall
+    (``won[i, w] = 2``; 1 = in contact, 0 = neither) and gets no contact from it until its
+    overlap ends.  Each such start is counted; the largest ``i * nw + w + 1`` among them names
+    one (particle row i, wall w) for the diagnosis.
+
     Returns (count of particles with non-finite position/velocity/spin, max wall overlap ratio,
-    max |r - r_ref|^2 after the fused drift or 0).
+    max |r - r_ref|^2 after the fused drift or 0, count of back-of-wall events, their largest
+    key i * nw + w + 1 or 0).
     """
     h = 0.5 * dt
     rv00 = Rv[0, 0]
@@ -291,6 +302,8 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
     rw21 = Rw[2, 1]
     rw22 = Rw[2, 2]
     bad = 0
+    nback = 0
+    kback = 0
     ovmax = 0.0
     m2 = 0.0
     for i in prange(n):
@@ -356,7 +369,14 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
                 wgeom[w, 0], wgeom[w, 1], wgeom[w, 2], wgeom[w, 3], wgeom[w, 4], wgeom[w, 5],
                 wgeom[w, 6], wgeom[w, 7], wgeom[w, 8], wgeom[w, 9], wgeom[w, 10], wgeom[w, 11],
                 wgeom[w, 12], wgeom[w, 13], wgeom[w, 14], x, y, z, r)
-            if ov > 0.0:
+            wo = won[i, w]
+            if ov > 0.0 and (wo == 2 or (wo == 0 and ov > r)):
+                # behind the wall (docstring): no contact until the overlap ends; counted once
+                if wo == 0:
+                    nback += 1
+                    kback = max(kback, i * nw + w + 1)
+                    won[i, w] = 2
+            elif ov > 0.0:
                 # surface velocity: v + spin n x (q - p) (spin about the wall's own axis)
                 wvx = wgeom[w, 16]
                 wvy = wgeom[w, 17]
@@ -393,7 +413,7 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
                 ovmax = max(ovmax, ov / r)
                 if wpar[w, P_MUR] > 0.0:
                     anyroll = True
-            elif won[i, w] != 0:
+            elif wo != 0:
                 won[i, w] = 0
                 wfn[i, w] = 0.0
                 for c in range(3):
@@ -416,7 +436,7 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
             pwz = wz + dt * (tz + etz) / inert
             for w in range(nw):
                 mur = wpar[w, P_MUR]
-                if won[i, w] == 0 or mur == 0.0:
+                if won[i, w] != 1 or mur == 0.0:
                     continue
                 rx, ry, rz, pwx, pwy, pwz = _rolling_step(mur * r * wfn[i, w], inert, dt, pwx, pwy, pwz)
                 tx += rx
@@ -512,7 +532,7 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
             ez = _min_image(pos[i, 2] - ref[i, 2], periodic_len[2])
             d2 = ex * ex + ey * ey + ez * ez
         m2 = max(m2, d2)
-    return bad, ovmax, m2
+    return bad, ovmax, m2, nback, kback
 
 
 @kernel
@@ -628,7 +648,7 @@ def reduce_walls(n, nw, won, wfw, wtw, fout, tout):
             tout[w, c] = 0.0
     for i in range(n):
         for w in range(nw):
-            if won[i, w] != 0:
+            if won[i, w] == 1:
                 for c in range(3):
                     fout[w, c] += wfw[i, w, c]
                     tout[w, c] += wtw[i, w, c]

@@ -133,6 +133,11 @@ class ParticleSystem:
         # previous step's gather; only left pending when a step() call stops on a bad flag)
         self._pending_m2 = -1.0
         self.n_rebuilds = 0
+        # particles that came to an analytic wall from its back (no contact, see
+        # integrate.gather_walls_kick): the total, and the events not yet reported
+        # (step, particle id, wall name, count in that evaluation) for the caller to log
+        self.wall_back_count = 0
+        self.wall_back_events: list[tuple[int, int, str, int]] = []
         self._fw = np.zeros((max(self.nw, 1), 3))
         self._tw = np.zeros((max(self.nw, 1), 3))
         # wall motion: kind saved while a wall is switched off; walls with v != 0 are translated
@@ -424,7 +429,7 @@ class ParticleSystem:
                                cur["hist"], cur["pf"], cur["pr"], self.dt, dt_hist)
         g, om, ap = self.gravity, self.frame_omega, self.axis_point
         drift_next = drift_next and max(ov_pp, ov_m) <= self.max_overlap_ratio_limit and not self._mesh_over
-        bad, ov_w, m2 = (it.gather_walls_kick_s if ser else it.gather_walls_kick)(
+        bad, ov_w, m2, nback, kback = (it.gather_walls_kick_s if ser else it.gather_walls_kick)(
             self.n, self._pos, self._vel, self._omega, self._force, self._torque, self._radius,
             self._mass, self._inertia, self._ext_force, self._ext_torque, self._has_ext, cur["pf"], cur["pr"],
             self._has_roll, cur["first_start"], cur["second_start"], cur["second_list"],
@@ -435,6 +440,12 @@ class ParticleSystem:
             self._plo, self._ref, self._held)
         self._last_ov = max(ov_pp, ov_w, ov_m)
         self._pending_m2 = m2 if drift_next else -1.0
+        if nback:
+            i, w = divmod(int(kback) - 1, self.nw)
+            self.wall_back_count += int(nback)
+            if len(self.wall_back_events) < 1000:  # the caller drains them after each step() call
+                self.wall_back_events.append((self.step_count + (1 if kick else 0), int(self._ids[i]),
+                                              self.walls[w].name or f"#{w}", int(nback)))
         return bad
 
     def _refresh(self):
@@ -555,9 +566,35 @@ class ParticleSystem:
             tc = min(tc, w.contact.collision_time(mmin, rmin, v))
         return tc
 
+    def _stable_dt(self) -> float:
+        """The stable step of velocity Verlet on one contact (:func:`cfddem.stability.contact_step_limit`),
+        the smallest over the particle-particle law and the walls, at the fastest particle's
+        speed (at least 1 mm/s); inf when no law gives one."""
+        from cfddem.stability import contact_step_limit
+
+        if self.n == 0:
+            return math.inf
+        mmin = float(self.mass.min())
+        rmin = float(self.radius.min())
+        sp = np.sqrt(np.sum(self.vel**2, axis=1))
+        sp = sp[np.isfinite(sp)]
+        v = max(float(sp.max()) if sp.size else 0.0, 1e-3)
+        lim = [contact_step_limit(self.pp, 0.5 * mmin, 0.5 * rmin, v)]
+        lim += [contact_step_limit(w.contact, mmin, rmin, v) for w in self.walls + self.meshes]
+        return min((x for d in lim for x in d.values()), default=math.inf)
+
     def _dt_hint(self) -> str:
         tc = self._min_tc()
-        return f"time step too large for this stiffness: dt = {self.dt / (tc / 20):.2g} t_c/20"
+        text = f"time step too large for this stiffness: dt = {self.dt / (tc / 20):.2g} t_c/20"
+        dts = self._stable_dt()
+        if self.dt <= 0.5 * dts:
+            why = (f"{self.wall_back_count} particle(s) came to a wall from its back in this run: particles "
+                   "left the region the walls enclose" if self.wall_back_count else
+                   "look for particles inserted into each other or into a wall, a wall moved into particles, "
+                   "or a particle leaving the walls' region")
+            text = (f"NOT the time step: dt = {self.dt:.3g} s is {self.dt / dts:.2g} of the stable step of one "
+                    f"contact ({dts:.3g} s at the fastest particle's speed); {why}")
+        return text
 
     def _nan_status(self) -> StepStatus:
         i = it.first_bad(self.n, self._pos, self._vel, self._omega)
@@ -921,7 +958,7 @@ class ParticleSystem:
         st: dict = dict(n=n, time=self.time, step_count=self.step_count, next_id=self._next_id,
                         npairs=self._npairs, n_built=self._n_built, skin_built=self._skin_built,
                         need_rebuild=int(self._need_rebuild), forces_stale=int(self._forces_stale),
-                        last_ov=self._last_ov, pending_m2=self._pending_m2,
+                        last_ov=self._last_ov, pending_m2=self._pending_m2, wall_back=self.wall_back_count,
                         w_geom=self._wgeom.copy(), w_ref=self._wref.copy())
         for name in _ROW_ARRAYS if self.nm else _PARTICLE_ARRAYS + _WALL_ARRAYS:
             st["p_" + name] = getattr(self, "_" + name)[:n].copy()
@@ -974,6 +1011,7 @@ class ParticleSystem:
         self._forces_stale = bool(state["forces_stale"])
         self._last_ov = float(state["last_ov"])
         self._pending_m2 = float(state["pending_m2"])
+        self.wall_back_count = int(state.get("wall_back", 0))  # checkpoints written before the count: 0
         if "w_geom" in state:  # moved or switched walls
             self._wgeom[...] = np.asarray(state["w_geom"]).reshape(self._wgeom.shape)
             self._wref[...] = np.asarray(state["w_ref"]).reshape(self._wref.shape)

@@ -20,7 +20,12 @@ exerted on each wall is accumulated are packed separately (:func:`pack_walls`). 
 returns the same (overlap, outward normal, contact point).
 
 One-sided: particles live on the +n side.  For a plane the contact exists while the centre
-height h = (x - p).n satisfies -R < h < R (overlap R - h).  For a rectangle the nearest point q
+height h = (x - p).n satisfies -R < h < R (overlap R - h).  The overlap exceeds R only for a
+contact that began on the front and was pushed in: a contact that would *begin* with the centre
+behind the face (overlap > R, a sphere arriving from the back of a rectangle or annulus, e.g.
+over a ring's rim) is no contact; the engine marks the particle behind that wall until the
+overlap ends and counts the event
+(:func:`cfddem.particles.integrate.gather_walls_kick`; the run log names the particle and wall).  For a rectangle the nearest point q
 of the rectangle to the centre is used: inside the face (|u1| <= h1, |u2| <= h2) this is the
 plane contact; outside, q lies on an edge or corner, the normal is (x - q)/|x - q| and the
 overlap R - |x - q|, for centres on the +n side only (h >= 0).

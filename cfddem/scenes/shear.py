@@ -18,6 +18,12 @@ Walls (named; contact parameters ``contact.particle_wall`` with the overrides of
 - wall-friction variant (``variant = "wall"``): no base ring and no bottom; the sample sits in
   the shear ring on ``plate``, a flat plane at y = H_b (``[shear.plate]`` friction): the shear
   force then measures wall friction.
+- ``mould``: the filling mould, the inside of the shear ring continued from its top to one
+  particle spacing above the fill lattice (:func:`mould_half_height`); it holds an overfill
+  that settles above the ring and is switched off when the bed is scraped.  Without it the
+  overfill spilled over the ring's rim and a particle that fell onto the back of
+  ``ring_ledge`` was thrown out (issue #22; the engine now ignores such back-of-wall contacts
+  and reports them).
 
 Ring offset (``ring_offset``, 3 mm): as in a Jenike tester the shear ring starts displaced by
 the offset AGAINST the shear direction (its axis at x = -offset) and travels ``shear_distance``
@@ -37,9 +43,9 @@ Phases:
 
 1. fill: ``n_particles`` spheres (or ``particles.clump`` pellets, random orientations) on a
    jittered cubic lattice inside the disc common to both rings (seeded by ``particles.seed``),
-   dropped under gravity; from ``fill_time`` on, the first check where the kinetic energy per
-   particle is below ``settle_energy`` ends the fill: particles (clumps) reaching above the
-   scrape level y_s = H_b + H_s - lid sphere diameter - lid_clearance are removed (the
+   dropped under gravity inside the rings and the mould; from ``fill_time`` on, the first check
+   where the kinetic energy per particle is below ``settle_energy`` ends the fill: the mould is
+   lifted, particles (clumps) reaching above the scrape level y_s = H_b + H_s - lid sphere diameter - lid_clearance are removed (the
    "scraping off" of a Jenike test) and the lid is placed on the bed.
 2. consolidation: the load ramps up; after at least ``consolidate_time`` and once the lid's
    vertical speed is below ``lid_settle_speed`` the shear starts.
@@ -186,7 +192,55 @@ def shear_walls(case):
                               dict(rings)))
         walls.append(WallSpec("ring_ledge", "annulus", np.array([-g.off, g.Hb, 0.0]), -ey, None, (g.R, g.R + t),
                               dict(rings)))
+    # the filling mould: the shear ring continued up to a spacing above the fill lattice, removed
+    # when the settled bed is scraped (module docstring)
+    hh = mould_half_height(case, g)
+    walls.append(WallSpec("mould", "cylinder", np.array([-g.off, g.Hb + g.Hs + hh, 0.0]), ey, None, (g.R, hh),
+                          dict(rings), inside=True))
     return walls
+
+
+# solid fraction of the settled fill assumed by cfddem check's estimate: the poured lattice
+# settles loose and uneven; 0.5 gives the scraped share of cases/shear_jenike (24 % predicted,
+# 781 of 3400 = 23 % scraped) and of issue #22's thesis fill (35 %; 1690 of 4700 = 36 %)
+FILL_FRACTION = 0.5
+
+
+def fill_estimate(case) -> dict:
+    """Heights (m) of the fill for ``cfddem check``: the lattice top, the mould top, the bed
+    height the fill's solid volume gives at a solid fraction :data:`FILL_FRACTION` over the
+    cell's cross-section above the floor, the shear ring's top and the scrape level."""
+    s = case.resolved["shear"]
+    p = case.particles
+    g = ShearGeometry(s, p.diameter)
+    sites, spacing, shape = fill_lattice(case)
+    v1 = math.pi / 6.0 * p.diameter**3 if shape is None else shape.mass / p.density
+    n = len(sites)
+    return {"n": n, "what": "spheres" if shape is None else f"{p.clump} clumps",
+            "lattice_top": float(sites[:, 1].max()) + 0.5 * spacing,
+            "mould_top": g.Hb + g.Hs + 2 * mould_half_height(case, g),
+            "floor": g.y_floor, "bed": g.y_floor + n * v1 / (FILL_FRACTION * g.area), "ring_top": g.Hb + g.Hs,
+            "scrape": g.y_scrape}
+
+
+def mould_half_height(case, g: ShearGeometry) -> float:
+    """Half height of the mould: from the shear ring's top to one spacing above the fill lattice
+    (at least one particle diameter)."""
+    sites, spacing, _ = fill_lattice(case)
+    return 0.5 * max(float(sites[:, 1].max()) + spacing - (g.Hb + g.Hs), g.d)
+
+
+def fill_lattice(case) -> tuple[np.ndarray, float, object]:
+    """The fill's lattice sites (:func:`fill_sites` with the case's keys), its particle spacing
+    (the diameter, or a clump's bounding diameter) and the clump shape (None for spheres)."""
+    from ..particles.clumps import particle_shape
+
+    s = case.resolved["shear"]
+    p = case.particles
+    g = ShearGeometry(s, p.diameter)
+    shape = particle_shape(p)
+    spacing = p.diameter if shape is None else 2 * float(np.max(np.linalg.norm(shape.offsets, axis=1) + shape.radii))
+    return fill_sites(g, s["n_particles"], spacing, s["lattice_gap"], s["lattice_jitter"], p.seed), spacing, shape
 
 
 def fill_sites(g: ShearGeometry, n: int, spacing: float, gap: float, jitter: float, seed: int) -> np.ndarray:
@@ -229,6 +283,25 @@ class ShearCellScene(Scene):
     @classmethod
     def has_particles(cls, case) -> bool:
         return True
+
+    @classmethod
+    def describe(cls, case) -> list[str]:
+        """The fill: lattice top, the bed height a settled solid fraction of 0.5 gives, against
+        the shear ring's top and the scrape level (:func:`fill_estimate`)."""
+        f = fill_estimate(case)
+        mm = 1e3
+        line = (f"shear cell fill: {f['n']} {f['what']} on a lattice up to y = {f['lattice_top'] * mm:.3g} mm, held by "
+                f"the mould (the shear ring continued to {f['mould_top'] * mm:.3g} mm, lifted at the scraping); settled "
+                f"(solid fraction {FILL_FRACTION:g}) the bed reaches about {f['bed'] * mm:.3g} mm against the shear ring's "
+                f"top {f['ring_top'] * mm:.3g} mm and the scrape level {f['scrape'] * mm:.3g} mm")
+        if f["bed"] < f["scrape"]:
+            line += " (WARNING: below the scrape level: raise shear.n_particles)"
+        elif f["bed"] > f["ring_top"]:
+            line += " (above the ring: the mould holds the overfill, about " \
+                    f"{100 * (f['bed'] - f['scrape']) / (f['bed'] - f['floor']):.0f} % of the fill is scraped)"
+        else:
+            line += " (OK)"
+        return [line]
 
     @classmethod
     def expected_particles(cls, case) -> int:
@@ -321,14 +394,8 @@ class ShearCellScene(Scene):
 
     # ------------------------------------------------------------------ hooks
     def start(self) -> None:
-        from ..particles.clumps import particle_shape
-
-        case = self.case
-        p = case.particles
-        shape = particle_shape(p)
-        spacing = p.diameter if shape is None else 2 * float(np.max(np.linalg.norm(shape.offsets, axis=1)
-                                                                    + shape.radii))
-        pos = fill_sites(self.g, self.s["n_particles"], spacing, self.s["lattice_gap"], self.s["lattice_jitter"], p.seed)
+        p = self.case.particles
+        pos, _, shape = fill_lattice(self.case)
         if shape is None:
             self.sys.add_particles(pos, np.zeros(3), 0.5 * p.diameter, p.density)
         else:
@@ -404,6 +471,8 @@ class ShearCellScene(Scene):
 
         sys_ = self.sys
         g = self.g
+        sys_.set_wall_active("mould", False)  # lifted off: what it held is above the scrape level
+        settled_top = float(np.max(sys_.pos[:, 1] + sys_.radius))
         top = sys_.pos[:, 1] + sys_.radius > g.y_scrape
         k, m = sys_.remove_particles(top) if top.any() else (0, 0.0)
         self.sim.counters["count_out"] += k
@@ -415,11 +484,18 @@ class ShearCellScene(Scene):
             self.sim.log.warning("shear cell: the settled bed (top %.4g m) is more than 3 d below the scrape level "
                                  "%.4g m: raise shear.n_particles", bed_top, g.y_scrape)
         c = lid_disc(g.R - g.clear, g.r_lid)
+        y = bed_top + g.r_lid + 0.05 * g.d
+        # the lid (centred on the shear ring) reaching into the base ring: with the ring offset
+        # larger than the lid's clearance its spheres would sit in the base ring's wall
+        out = float(np.max(np.hypot(c[:, 0] + self._ring_x(), c[:, 2]))) + g.r_lid - g.R
+        if not g.wall and y - g.r_lid < g.y_shear and out > 0.0:
+            raise RunError(f"shear cell: the settled bed (top {bed_top:.4g} m) puts the lid's bottom below the shear "
+                           f"plane ({g.y_shear:.4g} m): the lid, centred on the shear ring, would reach {out * 1e3:.3g} mm "
+                           f"into the base ring's wall; raise shear.n_particles (cfddem check estimates the bed height)")
         dens = self.s["lid_density"]
         shape = ClumpShape.from_spheres(c, g.r_lid, dens, name="lid")
         # the lid's normal in its body frame
         self._lid_normal_body = shape.frame.T @ np.array([0.0, 1.0, 0.0])
-        y = bed_top + g.r_lid + 0.05 * g.d
         bid = sys_.add_clumps(shape, [[self._ring_x(), y, 0.0]])
         self.lid_bid = int(bid[0])
         cl = sys_.clumps
@@ -432,10 +508,12 @@ class ShearCellScene(Scene):
         self._apply_load(t)
         self.phase = "consolidate"
         self.fill_info = {"kinetic_energy_per_particle": ke, "removed": k, "removed_mass": m, "bed_top": bed_top,
+                          "settled_top": settled_top,
                           "lid_spheres": len(c), "lid_mass": shape.mass, "time": t}
-        self.sim.log.info("shear cell: settled at t = %.4g s (kinetic energy per particle %.3g J); scraped %d "
+        self.sim.log.info("shear cell: settled at t = %.4g s (kinetic energy per particle %.3g J, bed top %.4g m, "
+                          "mould lifted); scraped %d "
                           "particles above y = %.4g m; lid of %d spheres (%.4g kg) placed at y = %.4g m; load %.4g N "
-                          "ramps over %.3g s", t, ke, k, g.y_scrape, len(c), shape.mass, y,
+                          "ramps over %.3g s", t, ke, settled_top, k, g.y_scrape, len(c), shape.mass, y,
                           self.s["normal_stress"] * g.area, self.s["load_ramp_time"])
 
     def _start_shear(self, t: float) -> None:
