@@ -139,7 +139,10 @@ def check_stl(case_path, dr: dict) -> list[str]:
     its ``cfddem check`` lines."""
     from .common import mesh_wall
 
-    mesh = mesh_wall(_mesh_spec(case_path, dr, 0.0))
+    try:
+        mesh = mesh_wall(_mesh_spec(case_path, dr, 0.0))
+    except CaseError as e:  # mesh_wall names "drum.stl.<its key>": drum.stl is the case's key
+        raise CaseError("drum.stl", f"{dr['stl']}: {e.reason}") from None
     V = mesh.vertices
     R, L = dr["radius"], dr["length"]
     rho = np.hypot(V[:, 0], V[:, 1])
