@@ -28,7 +28,7 @@ def test_check_lines():
     assert "drum: Froude number w^2 R / g = 0.00447; Mellmann (2001) regime expected: rolling or cascading" in text
     assert "drum: 2560 beads (fill fraction 0.5 at solid fraction 0.6)" in text
     mesh = "\n".join(describe_case(load_case(CASE, overrides=['drum.walls="mesh"'])))
-    assert "drum: mesh drum: 256 triangles" in mesh and "normals point inwards" in mesh
+    assert "mesh drum: 256 triangles" in mesh and "normals point inwards" in mesh
 
 
 @pytest.mark.parametrize("override,key,words", [
