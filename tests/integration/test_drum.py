@@ -123,3 +123,28 @@ def test_resume_while_turning_is_bit_identical(tmp_path, one_numba_thread):
     assert len(ma["angle_deg"]) == 16
     for k in ("time", "angle_deg", "torque_z", "profile_y"):
         assert np.array_equal(ma[k], mb[k]), k
+
+
+@pytest.mark.slow
+def test_angle_and_s_shape_grow_with_the_rotation_rate(tmp_path):
+    """cases/drum (2,560 beads, analytic walls) at 10 and 40 rpm (Fr = 0.0045 and 0.072), the
+    runs of cases/drum/variants.toml: measured 32.6 +- 0.4 deg, cubic -0.039, rolling at 10 rpm;
+    42.1 +- 0.3 deg, cubic -0.18, cascading at 40 rpm; torque on the drum -7.18 and -8.94 mN m
+    against -M g x_com = -7.27 and -8.75 mN m (docs/drum.md).  Asserted: the angle rises by more
+    than 5 deg, the S-shape by more than 0.08, the regimes, and torque = -M g x_com within 5 %."""
+    out = {}
+    for rpm, end in ((10.0, 2.55), (40.0, 1.988)):
+        case = load_case(CASE, overrides=[f"drum.rpm={rpm}", f"time.end_time={end}", "output.plots=false",
+                                          "time.threads=1", "checkpoint.wall_interval=0"])
+        s = Simulation(case, tmp_path / f"r{rpm:g}", echo=False, progress=False, threads=1).run()
+        assert s.status == "done", s.message
+        out[rpm] = read_measurements(tmp_path / f"r{rpm:g}" / "results.h5")["drum"]
+    lo, hi = out[10.0], out[40.0]
+    for rpm, m in out.items():
+        print(f"{rpm:g} rpm: angle {float(m['angle_deg_mean']):.2f} +- {float(m['angle_deg_err']):.2f} deg, cubic "
+              f"{float(m['s_shape_mean']):.3f}, torque {float(m['torque_z_mean']) * 1e3:.3f} mN m (-M g x_com "
+              f"{float(m['torque_weight']) * 1e3:.3f}), {m['regime_run']}")
+        assert float(m["torque_z_mean"]) == pytest.approx(float(m["torque_weight"]), rel=0.05)
+    assert float(hi["angle_deg_mean"]) - float(lo["angle_deg_mean"]) > 5.0
+    assert abs(float(hi["s_shape_mean"])) - abs(float(lo["s_shape_mean"])) > 0.08
+    assert lo["regime_run"] == "rolling" and hi["regime_run"] == "cascading"
