@@ -313,7 +313,7 @@ class DrumScene(Scene):
         """Torque about the axis that the beads exert on the drum (shell and plates, or the mesh)."""
         sys_ = self.sim.system
         if self.dr["walls"] == "mesh":
-            return float(sys_.mesh_torques()[sys_._mesh_index("drum"), 2])
+            return float(sys_.mesh_torques()[[m.name for m in sys_.meshes].index("drum"), 2])
         names = [w.name for w in sys_.walls]
         return float(sum(sys_.wall_torques()[names.index(k), 2] for k in ("drum", "plate_back", "plate_front")))
 
