@@ -451,3 +451,49 @@ def write_drum_plot(m: dict, out_dir):
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def plot_rate_study(results, path):
+    """The dynamic angle of repose (with its standard error) and the surface's cubic coefficient
+    against the Froude number, one line per wall kind, over Mellmann's regime ranges, from the
+    ``results.h5`` files of drum runs (e.g. the folders of a ``cfddem sweep`` over drum.rpm)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from pathlib import Path
+
+    from ..io.results import read_measurements
+    from ..measure.drum import MELLMANN_RANGES
+
+    runs: dict[str, list] = {}
+    for f in results:
+        m = read_measurements(f).get("drum")
+        if m is not None and int(m["n_samples"]):
+            runs.setdefault(str(m["walls"]), []).append(m)
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.2))
+    for k, (walls, ms) in enumerate(sorted(runs.items())):
+        ms.sort(key=lambda m: float(m["froude"]))
+        fr = [float(m["froude"]) for m in ms]
+        a1.errorbar(fr, [float(m["angle_deg_mean"]) for m in ms], [float(m["angle_deg_err"]) for m in ms],
+                    marker="os"[k % 2], capsize=3, label=f"{walls} drum")
+        a2.errorbar(fr, [float(m["s_shape_mean"]) for m in ms], [float(m["s_shape_err"]) for m in ms],
+                    marker="os"[k % 2], capsize=3, label=f"{walls} drum")
+    for ax in (a1, a2):
+        ax.set_xscale("log")
+        lo, hi = ax.get_xlim()
+        for j, (name, (a, b)) in enumerate(MELLMANN_RANGES.items()):
+            if b > lo and a < hi:
+                ax.axvspan(max(a, lo), min(b, hi), ymin=0.02 + 0.06 * j, ymax=0.07 + 0.06 * j, color=f"C{j + 2}",
+                           alpha=0.5, label=f"Mellmann: {name}")
+        ax.set_xlim(lo, hi)
+        ax.set_xlabel("Froude number w^2 R / g")
+        ax.grid(alpha=0.3, which="both")
+    a1.set_ylabel("dynamic angle of repose (deg)")
+    a2.set_ylabel("cubic coefficient of the surface (S-shape)")
+    a1.legend(fontsize=7)
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
