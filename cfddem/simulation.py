@@ -741,13 +741,13 @@ def engine_wall(w, model: str | None = None):
     if w.kind == "mesh":
         return mesh_wall(w, law)
     if w.kind == "plane":
-        return PlaneWall(contact=law, name=w.name, point=tuple(w.point), normal=tuple(w.normal))
+        return PlaneWall(contact=law, name=w.name, point=tuple(w.point), normal=tuple(w.normal), spin=w.spin)
     if w.kind == "annulus":  # half_extents = (inner radius, outer radius)
         return AnnulusWall(contact=law, name=w.name, point=tuple(w.point), normal=tuple(w.normal),
                            r_in=w.half_extents[0], r_out=w.half_extents[1])
     if w.kind == "cylinder":
         return CylinderWall(contact=law, name=w.name, point=tuple(w.point), axis=tuple(w.normal),
-                            radius=w.half_extents[0], half_height=w.half_extents[1], inside=w.inside)
+                            radius=w.half_extents[0], half_height=w.half_extents[1], inside=w.inside, spin=w.spin)
     return RectangleWall(contact=law, name=w.name, point=tuple(w.point), normal=tuple(w.normal),
                          axis1=tuple(w.u_axis), half1=w.half_extents[0], half2=w.half_extents[1])
 

@@ -834,6 +834,15 @@ class ParticleSystem:
         self._wgeom[k, 16:19] = np.asarray(velocity, float).reshape(3)
         self._moving = np.flatnonzero(np.any(self._wgeom[: self.nw, 16:19] != 0.0, axis=1))
 
+    def set_wall_spin(self, wall, spin: float) -> None:
+        """Angular speed (rad/s) of the surface of wall ``wall`` about its own axis / normal
+        (:mod:`cfddem.particles.walls`) from now on: a drum that starts turning."""
+        k = self._wall_index(wall)
+        if not math.isfinite(spin):
+            raise CaseError("wall.spin", f"must be finite, got {spin}")
+        self._wgeom[k, 19] = float(spin)
+        self._forces_stale = True
+
     def wall_position(self, wall) -> np.ndarray:
         """Current centre point p of wall ``wall``."""
         return self._wgeom[self._wall_index(wall), 1:4].copy()

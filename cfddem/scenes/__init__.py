@@ -50,6 +50,7 @@ SCENES: dict[str, str] = {
     "box": "cfddem.scenes.box:BoxScene",
     "silo": "cfddem.scenes.silo:SiloScene",
     "shear_cell": "cfddem.scenes.shear:ShearCellScene",
+    "drum": "cfddem.scenes.drum:DrumScene",
     "none": "cfddem.scenes:Scene",
 }
 SCENE_TYPES: tuple[str, ...] = tuple(SCENES)

@@ -43,6 +43,9 @@ class WallSpec:
     half_extents: tuple[float, float] | None = None
     params: dict | None = None  # contact keys of the law (cfddem.particles.contact), e.g. k_n, e_n, e_t, mu, mu_r
     inside: bool = True  # cylinder: particles inside the ring
+    #: angular speed (rad/s) of the surface about the wall's axis / normal through its point
+    #: (cfddem.particles.walls: a rotating drum's shell and end plates)
+    spin: float = 0.0
     #: a mesh wall: its [[geometry.walls]] keys (``file`` resolved against the case folder) and
     #: ``key`` (``geometry.walls[i]``, for error messages); :func:`mesh_wall` reads it
     mesh: dict | None = None
