@@ -27,6 +27,12 @@ from the particles), so no particle can leak through a corner; the slot edge is 
 bottom (or hopper) plate meets the lip: a particle rolling over that edge touches both walls'
 edges at the same point (two equal edge contacts: twice the stiffness, the same friction ratio).
 
+``silo.walls = "mesh"``: the container (every wall above but the gate) is the case's
+``[[geometry.walls]]`` mesh walls, each with its own contact keys, and the scene supplies only
+the gate; :func:`container_meshes` / :func:`write_container_stl` (``python -m
+cfddem.scenes.silo CASE --write-stl DIR``) triangulate the analytic container, one STL file per
+contact group.  ``cfddem check`` says whether the meshes' bounds cover the silo's box.
+
 Filling (``silo.fill = "lattice"``): ``n_particles`` on a cubic lattice of spacing
 d (1 + lattice_gap), each site displaced by up to +-lattice_jitter d/2 per axis (seeded), starting
 just above the flat bottom or the hopper top, at rest, dropped under gravity.  ``fill = "pour"``:
@@ -418,7 +424,7 @@ def main(argv=None) -> int:
             raise CaseError("geometry.type", f"{case.geometry.type!r}: needs a silo case")
         paths = write_container_stl(case, args.write_stl, args.units, args.max_edge)
     except CaseError as e:
-        print(f"error: {e}", file=sys.stderr)
+        print(f"cfddem: error: {e}", file=sys.stderr)
         return 2
     for grp, (V, F) in container_meshes(case, args.max_edge).items():
         print(f"# wrote {paths[grp]} ({len(F)} triangles, {args.units})")
