@@ -179,7 +179,7 @@ def _base(**silo):
     return raw
 
 
-def test_mesh_silo_case_errors(write_case):
+def test_mesh_silo_case_errors(write_case, tmp_path):
     with pytest.raises(CaseError) as e:
         build_case(_base(walls="mesh"))
     assert e.value.key == "silo.walls" and "[[geometry.walls]]" in e.value.reason
@@ -195,6 +195,12 @@ def test_mesh_silo_case_errors(write_case):
     with pytest.raises(CaseError) as e:
         load_case(d)
     assert e.value.key == "silo.sides.mu"
+    # the outlet-width study would move the gate and the measurements but not the meshes' slot
+    from cfddem.silo_study import run_beverloo_study
+
+    with pytest.raises(CaseError) as e:
+        run_beverloo_study(CASES / "silo_hopper_stl", [0.03, 0.04], tmp_path / "bev", echo=None)
+    assert e.value.key == "silo.walls"
     # the command line: one line naming the key, no traceback
     d2 = write_case(CASE.format(walls="mesh", n=10, end=0.1), name="b")
     p = subprocess.run([sys.executable, "-m", "cfddem.cli", "check", str(d2)], capture_output=True, text=True,
