@@ -249,3 +249,26 @@ def test_silo_hopper_stl_is_silo_hopper_with_its_walls_from_the_stl_files():
         want = MeshWall(V, F, None)
         assert mesh.n_triangles == want.n_triangles
         np.testing.assert_allclose(mesh.vertices[mesh.triangles], want.vertices[want.triangles], rtol=0, atol=1e-12)
+
+
+def test_write_stl_command(write_case, tmp_path, capsys):
+    """``python -m cfddem.scenes.silo CASE --write-stl DIR``: the files and the tables of a mesh
+    case that loads; ``--max-edge`` splits the rectangles (same bounds, more triangles)."""
+    from cfddem.scenes.silo import main
+
+    d = write_case(CASE.format(walls="analytic", n=30, end=0.1) + GROUPS, name="a")
+    assert main([str(d), "--write-stl", str(tmp_path / "m"), "--units", "cm"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("[[geometry.walls]]") == 3 and 'units = "cm"' in out and "mu = 0.45" in out
+    assert sorted(p.name for p in (tmp_path / "m").iterdir()) == ["bottom.stl", "front_back.stl", "sides.stl"]
+    (tmp_path / "m" / "case.toml").write_text(CASE.format(walls="mesh", n=30, end=0.1) + out)
+    m = load_case(tmp_path / "m")
+    coarse = {w.name: MeshWall.from_file(w.mesh["file"], None, units="cm") for w in wall_specs(m) if w.kind == "mesh"}
+    assert {k: v.n_triangles for k, v in coarse.items()} == {"front_back": 4, "sides": 4, "bottom": 8}
+    assert main([str(d), "--write-stl", str(tmp_path / "f"), "--max-edge", "0.01", "--units", "m"]) == 0
+    capsys.readouterr()
+    fine = MeshWall.from_file(tmp_path / "f" / "front_back.stl", None)
+    np.testing.assert_allclose(fine.bounds(), coarse["front_back"].bounds(), atol=1e-12)
+    assert fine.n_triangles > 100 and float(fine.edge_lengths().max()) < 0.01 * math.sqrt(2) + 1e-12
+    assert main([str(d), "--write-stl", str(tmp_path / "x"), "--set", "silo.width=-1"]) == 2
+    assert "silo.width" in capsys.readouterr().err
