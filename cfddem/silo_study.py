@@ -146,6 +146,9 @@ def run_beverloo_study(case, widths: list[float], out=None, *, common=None, sche
     base = load_case(case, overrides=list(common or []))
     if base.geometry.type != "silo":
         raise CaseError("geometry.type", f"'{base.geometry.type}': the Beverloo study needs a silo case")
+    if base.silo.walls == "mesh":
+        raise CaseError("silo.walls", "'mesh': the study varies silo.outlet_width and the slot of the mesh walls is "
+                                      "fixed in their files; run it on an analytic silo")
     case_dir = case_file(case).parent.resolve()
     out = Path(out).resolve() if out is not None else case_dir / "beverloo"
     variants = [{"silo.outlet_width": float(b)} for b in widths]

@@ -27,6 +27,12 @@ from the particles), so no particle can leak through a corner; the slot edge is 
 bottom (or hopper) plate meets the lip: a particle rolling over that edge touches both walls'
 edges at the same point (two equal edge contacts: twice the stiffness, the same friction ratio).
 
+``silo.walls = "mesh"``: the container (every wall above but the gate) is the case's
+``[[geometry.walls]]`` mesh walls, each with its own contact keys, and the scene supplies only
+the gate; :func:`container_meshes` / :func:`write_container_stl` (``python -m
+cfddem.scenes.silo CASE --write-stl DIR``) triangulate the analytic container, one STL file per
+contact group.  ``cfddem check`` says whether the meshes' bounds cover the silo's box.
+
 Filling (``silo.fill = "lattice"``): ``n_particles`` on a cubic lattice of spacing
 d (1 + lattice_gap), each site displaced by up to +-lattice_jitter d/2 per axis (seeded), starting
 just above the flat bottom or the hopper top, at rest, dropped under gravity.  ``fill = "pour"``:
@@ -76,6 +82,8 @@ from ..schema import positive as _pos
 WALL_GROUPS = {"front": "front_back", "back": "front_back", "left": "sides", "right": "sides",
                "bottom_left": "bottom", "bottom_right": "bottom", "hopper_left": "bottom",
                "hopper_right": "bottom", "lip_left": "bottom", "lip_right": "bottom", "gate": "gate_wall"}
+#: the contact groups of the container (every wall but the gate): one mesh wall each with silo.walls = "mesh"
+CONTAINER_GROUPS = ("front_back", "sides", "bottom")
 
 
 class SiloGeometry:
@@ -177,6 +185,12 @@ SILO_KEYS = {
                            "60: walls at 60 deg to the horizontal, 30 deg from the vertical)", lo=0.0, hi=80.0),
     "lip": _nonneg(0.0, "m", "thickness of the bottom plate: vertical lip walls line the slot from y = -lip to 0 and "
                    "the gate closes it at y = -lip (0: one particle diameter)"),
+    "walls": Key("str", "analytic", "-", "'analytic': the scene builds its container (front/back, side walls, bottom "
+                 "plates or hopper planes, slot lips) from these keys; 'mesh': the container comes from the case's "
+                 "[[geometry.walls]] type = 'mesh' walls (each with its own contact keys; [silo.front_back], "
+                 "[silo.sides], [silo.bottom] are then refused) and the scene adds only the gate it opens.  Fill, "
+                 "gate, removal, measurements and stop are the same.  The STL files of the analytic container: "
+                 "python -m cfddem.scenes.silo CASE --write-stl DIR (docs/silo.md)", choices=("analytic", "mesh")),
     "removal_depth": _nonneg(0.0, "m", "particles whose centre falls below y = -removal_depth are removed as "
                              "discharged (0: lip + 1.5 d)"),
     "n_particles": Key("int", 2000, "-", "particles of the fill lattice", lo=1),
@@ -249,6 +263,16 @@ def check_silo_case(r: dict) -> None:
                                               f"least lip + d/2 = {lip + 0.5 * d:g} m")
     for grp in ("front_back", "sides", "bottom", "gate_wall"):
         check_contact_values(f"silo.{grp}", s[grp])
+    if s["walls"] == "mesh":
+        if not any(isinstance(w, dict) and w.get("type") == "mesh" for w in r["geometry"]["walls"]):
+            raise CaseError("silo.walls", "'mesh' takes the silo's container from [[geometry.walls]] type = 'mesh' "
+                                          "walls and this case has none (write the analytic one with python -m "
+                                          "cfddem.scenes.silo CASE --write-stl DIR)")
+        for grp in CONTAINER_GROUPS:
+            given = [k for k, v in s[grp].items() if v is not None]
+            if given:
+                raise CaseError(f"silo.{grp}.{given[0]}", "with silo.walls = 'mesh' the container's contact keys "
+                                                          "belong to its [[geometry.walls]] mesh walls")
     if s["height"]:
         g = SiloGeometry(s, d, r["particles"]["seed"], r["particles"]["clump"], r["particles"]["density"],
                          r["particles"]["clump_spheres"])
@@ -259,12 +283,17 @@ def check_silo_case(r: dict) -> None:
                                            f"({g.lattice_top:.4g} m): raise it or set 0 (automatic)")
 
 
-def silo_walls(case):
+def silo_walls(case, container: bool | None = None):
     """The silo's :class:`~cfddem.scenes.common.WallSpec` list (params: the per-group overrides
-    only; :func:`cfddem.scenes.common.wall_specs` fills in ``contact.particle_wall``)."""
+    only; :func:`cfddem.scenes.common.wall_specs` fills in ``contact.particle_wall``).
+    ``container``: include the container (every wall but the gate); default: unless
+    ``silo.walls = "mesh"`` (then the case's mesh walls are the container and only the gate is
+    the scene's)."""
     from .common import WallSpec
 
     s = case.resolved["silo"]
+    if container is None:
+        container = s["walls"] != "mesh"
     p = case.particles
     g = SiloGeometry(s, p.diameter, p.seed, p.clump, p.density, p.clump_spheres)
     d, W, L, b, H, xc = g.d, g.W, g.L, g.b, g.H, g.xc
@@ -306,7 +335,134 @@ def silo_walls(case):
     add("lip_left", (x_edge, -0.5 * g.lip, 0.5 * L), ex, ey, 0.5 * g.lip, 0.5 * L + e)
     add("lip_right", (W - x_edge, -0.5 * g.lip, 0.5 * L), -ex, ey, 0.5 * g.lip, 0.5 * L + e)
     add("gate", (xc, -g.lip, 0.5 * L), ey, ex, 0.5 * b + e, 0.5 * L + e)
-    return walls
+    return walls if container else [w for w in walls if w.name == "gate"]
+
+
+def container_meshes(case, max_edge: float = 0.0) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The analytic container of the silo (:func:`silo_walls` with ``container=True``, all but
+    the gate) as triangle meshes, one per contact group (:data:`CONTAINER_GROUPS`):
+    ``{group: (vertices (nv, 3) in m, triangles (nt, 3))}``.  Each rectangle, with its extension
+    past the seams, becomes two triangles (or, with ``max_edge`` > 0 m, a grid of cells no longer
+    than ``max_edge`` on a side, two triangles each: :func:`~cfddem.particles.mesh.grid_surface`)
+    whose normal is the rectangle's; rectangles of one group meet only where the analytic ones
+    do (the slot edge, where a hopper or bottom plate meets its lip: one shared edge in the mesh)."""
+    from ..particles.mesh import grid_surface
+
+    parts: dict[str, list] = {g: [] for g in CONTAINER_GROUPS}
+    for w in silo_walls(case, container=True):
+        grp = WALL_GROUPS[w.name]
+        if grp not in parts:
+            continue
+        c = w.corners()  # c - a u - b v, c + a u - b v, c + a u + b v, c - a u + b v: (u x v) = normal
+        a, b = w.half_extents
+        nu, nv = ((max(1, math.ceil(2 * a / max_edge - 1e-9)), max(1, math.ceil(2 * b / max_edge - 1e-9)))
+                  if max_edge > 0 else (1, 1))
+        parts[grp].append(grid_surface(c[0], c[1] - c[0], c[3] - c[0], nu, nv))
+    out = {}
+    for grp, lst in parts.items():
+        offs = np.cumsum([0] + [len(V) for V, _ in lst])
+        out[grp] = (np.concatenate([V for V, _ in lst]), np.concatenate([F + o for (_, F), o in zip(lst, offs)]))
+    return out
+
+
+def write_container_stl(case, out_dir, units: str = "mm", max_edge: float = 0.0) -> dict:
+    """Write :func:`container_meshes` as ASCII STL files ``<group>.stl`` in ``out_dir`` (lengths
+    in ``units``, one of :data:`cfddem.particles.mesh.UNITS`; ASCII so that the coordinates keep
+    all their digits: binary STL holds 32-bit floats) with meshio.  Returns ``{group: path}``."""
+    from pathlib import Path
+
+    import meshio
+
+    from ..particles.mesh import UNITS
+
+    if units not in UNITS:
+        raise CaseError("--units", f"unknown unit {units!r} (one of {', '.join(UNITS)})")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {}
+    for grp, (V, F) in container_meshes(case, max_edge).items():
+        p = out / f"{grp}.stl"
+        meshio.write(p, meshio.Mesh(V / UNITS[units], [("triangle", F)]), file_format="stl", binary=False)
+        paths[grp] = p
+    return paths
+
+
+def container_walls_toml(case, paths: dict, units: str) -> str:
+    """The ``[[geometry.walls]]`` tables of the files :func:`write_container_stl` wrote, each
+    with its group's contact keys from ``[silo.<group>]`` (the keys set in the case)."""
+    s = case.resolved["silo"]
+    out = []
+    for grp, p in paths.items():
+        out += ["[[geometry.walls]]", f'name = "{grp}"', 'type = "mesh"', f'file = "{p.name}"', f'units = "{units}"']
+        out += [f"{k} = {v!r}" for k, v in s[grp].items() if v is not None]
+        out.append("")
+    return "\n".join(out)
+
+
+def main(argv=None) -> int:
+    """``python -m cfddem.scenes.silo CASE --write-stl DIR [--units mm] [--max-edge M] [--set K=V]...``:
+    write the analytic container of a silo case as STL files (one per contact group) and print
+    the ``[[geometry.walls]]`` tables of a ``silo.walls = "mesh"`` case that uses them."""
+    import argparse
+    import sys
+
+    from ..config import load_case
+    from ..particles.mesh import UNITS
+
+    ap = argparse.ArgumentParser(prog="python -m cfddem.scenes.silo",
+                                 description="write the silo's analytic container walls as STL files")
+    ap.add_argument("case", help="a silo case (its folder or case.toml)")
+    ap.add_argument("--write-stl", metavar="DIR", required=True, help="folder for <group>.stl")
+    ap.add_argument("--units", default="mm", choices=tuple(UNITS), help="length unit in the files (default mm)")
+    ap.add_argument("--max-edge", type=float, default=0.0, metavar="M",
+                    help="split each rectangle into cells no longer than M metres (default 0: two triangles)")
+    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
+    args = ap.parse_args(argv)
+    try:
+        case = load_case(args.case, overrides=args.overrides)
+        if case.geometry.type != "silo":
+            raise CaseError("geometry.type", f"{case.geometry.type!r}: needs a silo case")
+        paths = write_container_stl(case, args.write_stl, args.units, args.max_edge)
+    except CaseError as e:
+        print(f"cfddem: error: {e}", file=sys.stderr)
+        return 2
+    for grp, (V, F) in container_meshes(case, args.max_edge).items():
+        print(f"# wrote {paths[grp]} ({len(F)} triangles, {args.units})")
+    print(container_walls_toml(case, paths, args.units))
+    return 0
+
+
+def mesh_cover_line(case) -> str:
+    """The ``cfddem check`` line of a ``silo.walls = "mesh"`` case: whether the union of its fixed
+    mesh walls' bounds covers the silo's box x 0..width, y -lip..H (the side-wall height), z
+    0..depth (within 1e-9 of its diagonal).  Bounds only: that says nothing about holes."""
+    from .common import mesh_box, wall_specs
+
+    s = case.resolved["silo"]
+    p = case.particles
+    g = SiloGeometry(s, p.diameter, p.seed, p.clump, p.density, p.clump_spheres)
+    box = np.array([[0.0, -g.lip, 0.0], [g.W, g.H, g.L]])
+    names, boxes = [], []
+    for w in wall_specs(case):
+        if w.kind == "mesh":
+            names.append(w.name)
+            b = mesh_box(w)
+            boxes.append(np.array([np.full(3, -np.inf), np.full(3, np.inf)]) if b is None else b)
+    lo = np.min([b[0] for b in boxes], axis=0)
+    hi = np.max([b[1] for b in boxes], axis=0)
+
+    def fmt(v):
+        return "[" + ", ".join(f"{x:.4g}" for x in v) + "]"
+
+    tol = 1e-9 * float(np.linalg.norm(box[1] - box[0]))
+    short = [f"{'xyz'[a]} {'from' if k == 0 else 'to'} {(lo if k == 0 else hi)[a]:.4g} m, not "
+             f"{box[k, a]:.4g} m" for k in (0, 1) for a in range(3)
+             if (lo[a] > box[0, a] + tol if k == 0 else hi[a] < box[1, a] - tol)]
+    head = (f"silo walls: the meshes {', '.join(names)} and the scene's gate; mesh bounds {fmt(lo)} .. {fmt(hi)} m ")
+    if not short:
+        return head + f"cover the silo's box {fmt(box[0])} .. {fmt(box[1])} m"
+    return head + (f"WARNING: do not cover the silo's box {fmt(box[0])} .. {fmt(box[1])} m ({'; '.join(short)}): "
+                   "particles can leave the container")
 
 
 class SiloScene(Scene):
@@ -379,6 +535,13 @@ class SiloScene(Scene):
     @classmethod
     def wall_specs(cls, case) -> list:
         return silo_walls(case)
+
+    @classmethod
+    def describe(cls, case) -> list[str]:
+        """With ``silo.walls = "mesh"``: whether the mesh walls' bounds cover the silo's box."""
+        if case.resolved["silo"]["walls"] != "mesh":
+            return []
+        return [mesh_cover_line(case)]
 
     @classmethod
     def has_particles(cls, case) -> bool:
@@ -672,3 +835,7 @@ class SiloScene(Scene):
         self.field.set_state(d["field"])
         for k, v in d["fill"].items():
             self.fill[k] = np.asarray(v, float) if k.startswith("box") else float(v)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
