@@ -498,9 +498,18 @@ class MeshTables:
         self.events = sorted((t, k, on) for k, m in enumerate(meshes) for t, on in m.schedule)
         self.next_event = 0
         self._chord_grids: dict = {}  # mesh -> its triangles binned for crossings() (built when first needed)
+        self._moving = None
 
     def moving(self) -> np.ndarray:
-        return np.flatnonzero(np.any(self.vel[: self.nm] != 0.0, axis=1) | np.any(self.omg[: self.nm] != 0.0, axis=1))
+        """Indices of the meshes that translate or rotate (cached: call :meth:`motion_changed`
+        after changing ``vel`` or ``omg``)."""
+        if self._moving is None:
+            self._moving = np.flatnonzero(np.any(self.vel[: self.nm] != 0.0, axis=1)
+                                          | np.any(self.omg[: self.nm] != 0.0, axis=1))
+        return self._moving
+
+    def motion_changed(self) -> None:
+        self._moving = None
 
     def advance(self, dt: float) -> None:
         """Move every moving mesh by one step of length ``dt``."""
@@ -561,6 +570,7 @@ class MeshTables:
         self.act[...] = st["m_act"]
         self.vel[...] = st["m_vel"]
         self.omg[...] = st["m_omg"]
+        self.motion_changed()
         self.disp = float(st["m_disp"])
         self.next_event = int(st["m_next_event"])
         for k in range(self.nm):

@@ -738,7 +738,8 @@ class ParticleSystem:
             _, k, on = mt.events[mt.next_event]
             mt.next_event += 1
             self.set_mesh_active(k, on)
-        mt.advance(self.dt)
+        if len(mt.moving()):
+            mt.advance(self.dt)
 
     def set_mesh_active(self, wall, active: bool) -> None:
         """Switch mesh wall ``wall`` (name or index into ``meshes``) on or off; off drops its
@@ -757,6 +758,7 @@ class ParticleSystem:
             self._mt.vel[k] = mw._vec3("velocity", velocity)
         if angular_velocity is not None:
             self._mt.omg[k] = mw._vec3("angular_velocity", angular_velocity)
+        self._mt.motion_changed()
 
     def mesh_vertices(self, wall) -> np.ndarray:
         """(nv, 3) current vertex positions of mesh wall ``wall`` (triangles: ``meshes[k].triangles``)."""
