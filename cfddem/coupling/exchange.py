@@ -364,6 +364,7 @@ class CoupledGas:
         #: pressure gradient of the held field, the gas feels nothing)
         self.drag_factor = float(drag_factor)
         self.frozen = bool(frozen)
+        self._rest_p = None  # a frozen gas's pressure (hold_at_rest)
         self.system = system
         self.grid = grid
         self.gas = GasSolver(grid, rho=rho, mu=mu, bcs=bcs, gravity=gravity, omega=omega,
@@ -860,6 +861,18 @@ class CoupledGas:
                 "avg_sum": self._avg_sum.copy(), "avg_time": float(self._avg_time),
                 "last": {k: float(v) for k, v in self._last.items()}}
 
+    def hold_at_rest(self) -> None:
+        """A frozen gas (``gas.coupling = "one_way_rest"``): the air at rest in the simulation's
+        frame, on the boundary faces too (an inlet's or a moving lid's face values are not
+        imposed), with the pressure it has now (the scene's initial, hydrostatic field), kept
+        through checkpoints: a run branched from a developed flow with moving air holds the air
+        at rest, not the flow of the checkpoint."""
+        if self._rest_p is None:
+            self._rest_p = self.gas.p.data.copy()
+        for f in (self.gas.u, self.gas.v, self.gas.w):
+            f.data[...] = 0.0
+        self.gas.p.data[...] = self._rest_p
+
     def set_state(self, d: dict) -> None:
         gs = dict(d["gas"])
         gs.setdefault("amg_reference_coefficients", None)
@@ -881,6 +894,8 @@ class CoupledGas:
             found = (len(ids) > 0) & (ids[order][k] == cur) if len(ids) else np.zeros(len(cur), bool)
             self.system.ext_force[:] = 0.0
             self.system.ext_force[found] = f[order][k[found]]
+        if self.frozen:
+            self.hold_at_rest()
 
     # ------------------------------------------------------------------ diagnostics
     def run_stats(self) -> dict:
@@ -991,14 +1006,12 @@ def build_coupled_gas(case, system, domain, log=None) -> CoupledGas:
                     pressure_solver=gcfg.pressure_solver, tol=gcfg.pressure_tol, drag_factor=gcfg.drag_factor,
                     frozen=frozen)
     cg.average_start = float(case.measurements.start_time)
-    if frozen:  # the air at rest in the simulation's frame, its pressure the domain's initial (hydrostatic) one;
-        # at rest on the boundary faces too (an inlet's or a moving lid's face values are not imposed)
-        for f in (cg.gas.u, cg.gas.v, cg.gas.w):
-            f.data[...] = 0.0
-    elif domain.velocity is not None:
+    if domain.velocity is not None and not frozen:
         cg.gas.set_velocity(domain.velocity)
     if domain.pressure is not None:
         cg.gas.set_pressure(domain.pressure)
+    if frozen:
+        cg.hold_at_rest()
     return cg
 
 
