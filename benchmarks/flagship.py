@@ -51,10 +51,10 @@ def run_side(tree: str, case: str, sets: list, ckpt: str, t_end: float, out: Pat
     ckpt = str(Path(ckpt).resolve())
     case = str(Path(case).resolve())
     cmd = [sys.executable, "-m", "cfddem.cli", "run", case, "--set", f'checkpoint.start_from="{ckpt}"',
-           "--set", f"time.end_time={t_end}", "--set", f"measurements.start_time={t_end}",
+           "--set", f"time.end_time={t_end}", "--set", f"measurements.start_time={t_end - 0.01}",
            "--set", "study.compare_without_gas=false", "--set", "output.vtk=false",
            "--set", "output.plots=false", "--set", "checkpoint.wall_interval=0",
-           "--out", str(out), "--force", "--threads", str(threads)]
+           "--out", str(out), "--force", "--overwrite", "--threads", str(threads)]
     for s in sets:
         cmd += ["--set", s]
     env = dict(os.environ, NUMBA_CACHE_DIR=cache)
