@@ -435,7 +435,9 @@ def compare_runs(a: str | Path, b: str | Path, out: str | Path, labels=(None, No
     tail = []
     if ra.budget and rb.budget:
         tail = _budget_section(runs, out, summary)
-        figs["momentum_budget.png"] = ("Streamwise momentum budget of the particles", lambda runs, path: None)
+        if (out / "momentum_budget.png").exists() and not any(
+                "No particle was in the budget bins" in line for line in tail):
+            figs["momentum_budget.png"] = ("Streamwise momentum budget of the particles", lambda runs, path: None)
     for r, tag in zip(runs, ("a", "b")):
         if r.gas_budget:
             tail += gas_budget_section(r, summary, tag)
@@ -507,6 +509,11 @@ def _budget_section(runs, out: Path, summary: dict) -> list[str]:
     and ``drag_force_total`` / ``budget_residual_relative`` in the summary."""
     ra, rb = runs
     tots = [_budget_totals(r.budget) for r in runs]
+    if any(t["gravity"][0] == 0.0 for t in tots):  # e.g. a short run: no particle reached the bins yet
+        summary["budget_residual_relative"] = math.nan
+        return ["## Streamwise momentum budget of the particles", "",
+                "No particle was in the budget bins during the measurement window of "
+                + " and ".join(r.label for r, t in zip(runs, tots) if t["gravity"][0] == 0.0) + ".", ""]
     md = ["## Streamwise momentum budget of the particles", "",
           f"Sums over the budget bins (z = {ra.budget['edges'][0]:.3g} to {ra.budget['edges'][-1]:.3g} m), "
           "time-averaged over the measurement window, force on the particles along the chute in mN; "
