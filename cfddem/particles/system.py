@@ -592,9 +592,34 @@ class ParticleSystem:
                    "left the region the walls enclose" if self.wall_back_count else
                    "look for particles inserted into each other or into a wall, a wall moved into particles, "
                    "or a particle leaving the walls' region")
+            soft = self._soft_hint()
+            if soft:
+                why = f"{soft}; else {why}"
             text = (f"NOT the time step: dt = {self.dt:.3g} s is {self.dt / dts:.2g} of the stable step of one "
                     f"contact ({dts:.3g} s at the fastest particle's speed); {why}")
         return text
+
+    def _soft_hint(self) -> str:
+        """'' or a sentence when a head-on impact of the two fastest particles would overlap more
+        than the overlap limit even when resolved exactly (undamped, k_n linearised at the
+        impact): the contacts are too soft for the speeds, whatever the time step."""
+        if self.n == 0:
+            return ""
+        sp = np.sqrt(np.sum(self.vel**2, axis=1))
+        sp = sp[np.isfinite(sp)]
+        if not sp.size:
+            return ""
+        v = 2.0 * float(sp.max())
+        mmin, rmin = float(self.mass.min()), float(self.radius.min())
+        lin = self.pp.linearised(0.5 * mmin, 0.5 * rmin, v)
+        if not lin or not lin.get("k_n"):
+            return ""
+        ratio = v * math.sqrt(0.5 * mmin / lin["k_n"]) / rmin
+        if ratio <= self.max_overlap_ratio_limit:
+            return ""
+        return (f"the contacts are too soft for the speeds: a head-on impact at {v:.3g} m/s overlaps "
+                f"{ratio:.2g} radii even when resolved exactly (k_n = {lin['k_n']:.3g} N/m at that impact): "
+                f"raise the stiffness or lower the speeds")
 
     def _nan_status(self) -> StepStatus:
         i = it.first_bad(self.n, self._pos, self._vel, self._omega)
