@@ -86,13 +86,14 @@ def find_crossing(system, mark: dict, stats: dict | None = None) -> Crossing | N
     if not len(ids) or not len(pid):
         return None
     order = np.argsort(pid)
-    k = np.minimum(np.searchsorted(pid[order], ids), len(pid) - 1)
-    known = pid[order][k] == ids
+    sp = pid[order]
+    k = np.minimum(np.searchsorted(sp, ids), len(pid) - 1)
+    known = sp[k] == ids
     if not known.any():
         return None
     at = np.flatnonzero(known)
     cur = system.pos[known]
-    old = mark["pos"][order][k[known]]
+    old = mark["pos"][order[k[known]]]  # one gather (no full reordered copy)
     r = rad[known]
 
     def found(i, wall, tri, depth):
@@ -102,11 +103,20 @@ def find_crossing(system, mark: dict, stats: dict | None = None) -> Crossing | N
     for iw, w in enumerate(system.walls):
         if wg[iw, 0] < 0.0 or mark["wgeom"][iw, 0] < 0.0:  # a gate open now or at the mark
             continue
-        h_now, h_old, within = _analytic_heights(wg[iw], mark["wgeom"][iw], cur, old)
-        crossed = (h_old >= 0.0) & (h_now < -r) & within
+        sel = None
+        if int(wg[iw, 0]) != KIND_CYLINDER:
+            # the plane heights first (two products); the extent only for the few behind the plane
+            n = wg[iw, 4:7]
+            sel = np.flatnonzero(((old - mark["wgeom"][iw, 1:4]) @ n >= 0.0) & ((cur - wg[iw, 1:4]) @ n < -r))
+            if not len(sel):
+                continue
+        c_, o_, r_ = (cur, old, r) if sel is None else (cur[sel], old[sel], r[sel])
+        h_now, h_old, within = _analytic_heights(wg[iw], mark["wgeom"][iw], c_, o_)
+        crossed = (h_old >= 0.0) & (h_now < -r_) & within
         if crossed.any():
-            i = int(np.flatnonzero(crossed)[0])
-            return found(i, w.name, -1, -h_now[i])
+            j = int(np.flatnonzero(crossed)[0])
+            i = j if sel is None else int(sel[j])
+            return found(i, w.name, -1, -h_now[j])
     mt = system._mt
     before = mark["mesh"]
     switched = {e[1] for e in mt.events[before["next_event"]: mt.next_event]}
