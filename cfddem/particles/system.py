@@ -552,15 +552,19 @@ class ParticleSystem:
                     "(or particles inserted into each other / too fast)", s + 1)
         return StepStatus(ok=True, steps_done=n_steps)
 
+    def _max_speed(self) -> float:
+        """The fastest particle's speed (finite values only; 0 without any)."""
+        sp = np.sqrt(np.sum(self.vel**2, axis=1))
+        sp = sp[np.isfinite(sp)]
+        return float(sp.max()) if sp.size else 0.0
+
     def _min_tc(self) -> float:
         if self.n == 0:
             return float("inf")
         mmin = float(self.mass.min())
         rmin = float(self.radius.min())
         # impact speed for the Hertz time (ignored by the linear law): the fastest particle
-        sp = np.sqrt(np.sum(self.vel**2, axis=1))
-        sp = sp[np.isfinite(sp)]
-        v = max(float(sp.max()) if sp.size else 0.0, 1e-3)
+        v = max(self._max_speed(), 1e-3)
         tc = self.pp.collision_time(0.5 * mmin, 0.5 * rmin, v)
         for w in self.walls + self.meshes:
             tc = min(tc, w.contact.collision_time(mmin, rmin, v))
@@ -576,9 +580,7 @@ class ParticleSystem:
             return math.inf
         mmin = float(self.mass.min())
         rmin = float(self.radius.min())
-        sp = np.sqrt(np.sum(self.vel**2, axis=1))
-        sp = sp[np.isfinite(sp)]
-        v = max(float(sp.max()) if sp.size else 0.0, 1e-3)
+        v = max(self._max_speed(), 1e-3)
         lim = [contact_step_limit(self.pp, 0.5 * mmin, 0.5 * rmin, v)]
         lim += [contact_step_limit(w.contact, mmin, rmin, v) for w in self.walls + self.meshes]
         return min((x for d in lim for x in d.values()), default=math.inf)
@@ -603,13 +605,9 @@ class ParticleSystem:
         """'' or a sentence when a head-on impact of the two fastest particles would overlap more
         than the overlap limit even when resolved exactly (undamped, k_n linearised at the
         impact): the contacts are too soft for the speeds, whatever the time step."""
-        if self.n == 0:
+        v = 2.0 * self._max_speed() if self.n else 0.0
+        if v == 0.0:
             return ""
-        sp = np.sqrt(np.sum(self.vel**2, axis=1))
-        sp = sp[np.isfinite(sp)]
-        if not sp.size:
-            return ""
-        v = 2.0 * float(sp.max())
         mmin, rmin = float(self.mass.min()), float(self.radius.min())
         lin = self.pp.linearised(0.5 * mmin, 0.5 * rmin, v)
         if not lin or not lin.get("k_n"):
