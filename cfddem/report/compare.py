@@ -413,6 +413,8 @@ def compare_runs(a: str | Path, b: str | Path, out: str | Path, labels=(None, No
         "top_view.png": ("Top view of the flow", _fig_top),
         "cost.png": ("Wall time and cost split", _fig_cost),
     }
+    if _budget_filled(runs):
+        figs["momentum_budget.png"] = ("Streamwise momentum budget of the particles", _fig_budget)
     for name, (_, fn) in figs.items():
         fn(runs, out / name)
     va, vb = ra.velocity_end(), rb.velocity_end()
@@ -432,12 +434,7 @@ def compare_runs(a: str | Path, b: str | Path, out: str | Path, labels=(None, No
           f"- A: `{ra.folder}` ({ra.label}, {ra.rpm:g} rpm); B: `{rb.folder}` ({rb.label}, {rb.rpm:g} rpm)",
           f"- mean streamwise particle velocity over the last {END_LENGTH:g} m: A {va:.4f} m/s, "
           f"B {vb:.4f} m/s, relative difference (B - A)/A = {100 * summary['relative_difference_end']:+.2f} %"]
-    tail = []
-    if ra.budget and rb.budget:
-        tail = _budget_section(runs, out, summary)
-        if (out / "momentum_budget.png").exists() and not any(
-                "No particle was in the budget bins" in line for line in tail):
-            figs["momentum_budget.png"] = ("Streamwise momentum budget of the particles", lambda runs, path: None)
+    tail = _budget_section(runs, summary) if ra.budget and rb.budget else []
     for r, tag in zip(runs, ("a", "b")):
         if r.gas_budget:
             tail += gas_budget_section(r, summary, tag)
@@ -504,12 +501,19 @@ def budget_sentence(tot_gas: dict, tot_free: dict, dv_rel: float) -> str:
     return txt
 
 
-def _budget_section(runs, out: Path, summary: dict) -> list[str]:
-    """The budget table (terms summed over the bins, both runs), its figure, the sentence,
-    and ``drag_force_total`` / ``budget_residual_relative`` in the summary."""
+def _budget_filled(runs) -> bool:
+    """Whether both runs have a budget whose bins held particles in the window (a short run's
+    may not: no particle reached the bins yet)."""
+    return all(r.budget and _budget_totals(r.budget)["gravity"][0] != 0.0 for r in runs)
+
+
+def _budget_section(runs, summary: dict) -> list[str]:
+    """The budget table (terms summed over the bins, both runs), the sentence, the slip table,
+    and ``drag_force_total`` / ``budget_residual_relative`` in the summary (the figure:
+    :func:`_fig_budget`)."""
     ra, rb = runs
     tots = [_budget_totals(r.budget) for r in runs]
-    if any(t["gravity"][0] == 0.0 for t in tots):  # e.g. a short run: no particle reached the bins yet
+    if not _budget_filled(runs):
         summary["budget_residual_relative"] = math.nan
         return ["## Streamwise momentum budget of the particles", "",
                 "No particle was in the budget bins during the measurement window of "
@@ -553,7 +557,6 @@ def _budget_section(runs, out: Path, summary: dict) -> list[str]:
     else:
         summary["budget_residual_relative"] = abs(tots[0]["residual"][0]) / abs(tots[0]["gravity"][0]) \
             if tots[0]["gravity"][0] else math.nan
-    _fig_budget(runs, out / "momentum_budget.png")
     return md
 
 
