@@ -40,9 +40,9 @@ speeds up and slows down again); samples 10 ms apart catch such pulses at random
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
+
+from .stats import block_error
 
 TERMS = ("gravity", "walls", "contacts", "drag", "pressure", "coriolis", "centrifugal", "flux")
 #: the terms sampled at the measurement times (the gas's are integrated over every gas step)
@@ -50,20 +50,6 @@ SAMPLED = ("gravity", "walls", "contacts", "coriolis", "centrifugal", "flux")
 #: the particles whose slip against the gas is averaged, by the porosity at their centre
 SLIP_CLASSES = ("bed", "surface", "dilute")
 SLIP_EDGES = (0.6, 0.9)
-
-
-def block_error(samples: np.ndarray, n_blocks: int = 10) -> np.ndarray:
-    """Standard error of the mean of ``samples`` (n, ...) along axis 0 from ``n_blocks``
-    contiguous block means (the blocks' standard deviation / sqrt(n_blocks)); NaN with fewer
-    than 2 blocks of at least one sample.  Correlated samples inside a block do not make the
-    error look smaller than it is, as long as a block is longer than the correlation time."""
-    s = np.asarray(samples, float)
-    nb = min(int(n_blocks), s.shape[0])
-    if nb < 2:
-        return np.full(s.shape[1:], np.nan)
-    edges = np.linspace(0, s.shape[0], nb + 1).astype(int)
-    means = np.array([s[a:b].mean(axis=0) for a, b in zip(edges[:-1], edges[1:])])
-    return means.std(axis=0, ddof=1) / math.sqrt(nb)
 
 
 class MomentumBudget:
@@ -230,9 +216,9 @@ class MomentumBudget:
         # its error: the scatter of the same difference over the blocks of the window
         nb = min(self.n_blocks, len(t) // 2)
         if nb >= 2:
-            e = np.linspace(0, len(t), nb + 1).astype(int)
-            rates = np.array([(S["momentum"][b - 1] - S["momentum"][a]) / (t[b - 1] - t[a])
-                              for a, b in zip(e[:-1], e[1:]) if t[b - 1] > t[a]])
+            blocks = np.array_split(np.arange(len(t)), nb)  # the blocks of block_error
+            rates = np.array([(S["momentum"][b[-1]] - S["momentum"][b[0]]) / (t[b[-1]] - t[b[0]])
+                              for b in blocks if t[b[-1]] > t[b[0]]])
             out["storage_err"] = rates.std(axis=0, ddof=1) / np.sqrt(len(rates)) if len(rates) >= 2 \
                 else np.full(self.n_bins, np.nan)
         else:

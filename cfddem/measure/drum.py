@@ -39,6 +39,8 @@ import math
 
 import numpy as np
 
+from .stats import block_error
+
 #: Mellmann (2001): Froude-number ranges of the forms of transverse motion (lo, hi), Fr = w^2 R / g
 MELLMANN_RANGES = {
     "slumping": (1e-5, 1e-3),
@@ -132,8 +134,7 @@ def block_average(v, n_blocks: int = 5) -> tuple[float, float]:
         return math.nan, math.nan
     if len(v) < n_blocks or n_blocks < 2:
         return float(np.mean(v)), math.nan
-    blocks = [np.mean(b) for b in np.array_split(v, n_blocks)]
-    return float(np.mean(v)), float(np.std(blocks, ddof=1) / math.sqrt(n_blocks))
+    return float(np.mean(v)), float(block_error(v, n_blocks))
 
 
 def classify_run(angle_std_deg: float, s_shape: float, airborne: float, *, slump_std_deg: float = 2.0,

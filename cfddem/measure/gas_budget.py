@@ -64,7 +64,7 @@ from cfddem.coupling.exchange import _gas_drag_sum
 from cfddem.errors import CaseError
 from cfddem.gas.boundaries import SIDES
 from cfddem.gas.momentum import PERM, face_value
-from cfddem.measure.budget import block_error
+from cfddem.measure.stats import block_error
 
 #: volume terms (forces on the gas, N, along the axis)
 VOLUME = ("drag", "pressure_particles", "source", "gravity", "coriolis", "centrifugal", "mass_imbalance")
