@@ -102,9 +102,10 @@ SCHEMA: dict[str, dict] = {
         "diameter_max": _nonneg(0.0, "m", "polydisperse: diameters uniform in [diameter, diameter_max] (0: monodisperse)"),
         "density": _pos(2550.0, "kg/m^3", "particle material density"),
         "initial_file": Key("str", "", "-", "CSV or HDF5 file of initial particles (relative to the case folder); "
-                            "CSV columns x,y,z,vx,vy,vz,wx,wy,wz,radius (header line), HDF5 datasets pos, vel, omega, radius"),
+                            "CSV columns x,y,z,vx,vy,vz,wx,wy,wz,radius,label (header line), HDF5 datasets pos, vel, "
+                            "omega, radius, label (velocities, spins and the integer tracer label optional)"),
         "initial": Key("tables", [], "-", "inline initial particles: [[particles.initial]] tables with pos (m), "
-                       "radius (m), and optional vel (m/s), omega (rad/s)"),
+                       "radius (m), and optional vel (m/s), omega (rad/s), label (integer tracer label, 0)"),
         "max_overlap_ratio": _f(0.5, "-", "stop the run when an overlap exceeds this fraction of the smaller radius",
                                 lo=0.0, lo_open=True, hi=1.0),
         "skin": _nonneg(0.0, "m", "Verlet-list skin (0: 0.3 x the largest diameter)"),
@@ -467,7 +468,7 @@ def _suggest_choice(v: str, choices) -> str:
 _ANALYTIC_WALL_KEYS = {"point", "normal", "u_axis", "half_extents", "axis", "radius", "half_height", "inside"}
 _WALL_KEYS = {"type", "name"} | _ANALYTIC_WALL_KEYS | set(MESH_KEYS) | set(contact_keys())  # geometry.walls
 # entries: geometry (analytic or mesh) and the contact-law keys
-_INITIAL_KEYS = {"pos", "vel", "omega", "radius"}
+_INITIAL_KEYS = {"pos", "vel", "omega", "radius", "label"}
 
 
 def _vec(key: str, v, n=3) -> list[float]:
@@ -595,6 +596,8 @@ def _check_consistency(r: dict, case_dir: Path) -> None:
         for k in ("vel", "omega"):
             if k in t:
                 _vec(f"{key}.{k}", t[k])
+        if "label" in t and (isinstance(t["label"], bool) or not isinstance(t["label"], int)):
+            raise CaseError(f"{key}.label", f"{t['label']!r} must be an integer (a tracer label)")
     sf = r["checkpoint"]["start_from"]
     if sf:
         f = case_dir / sf
@@ -608,6 +611,9 @@ def _check_consistency(r: dict, case_dir: Path) -> None:
             raise CaseError("particles.initial_file", f"file not found: {f}")
         if f.suffix.lower() not in (".csv", ".h5", ".hdf5"):
             raise CaseError("particles.initial_file", f"unsupported file type '{f.suffix}': use .csv or .h5")
+        from .scenes.common import read_particle_file
+
+        read_particle_file(f)  # its columns and values are checked before any run folder exists
     if p["clump"] != "none" and not scene.inserts_clumps(r):
         raise CaseError("particles.clump", "clumps are inserted by a scene's fill or inlet only (initial particles "
                                            f"are spheres): geometry.type = '{geo['type']}' with these settings has none")

@@ -160,7 +160,7 @@ class Simulation:
             if self.system.overlaps(init["pos"], init["radius"]).any():
                 raise CaseError("particles.initial", "initial particles overlap each other")
             self.system.add_particles(init["pos"], init["vel"], init["radius"], case.particles.density,
-                                      omega=init["omega"])
+                                      omega=init["omega"], label=init["label"])
         self.inlet = self.scene.make_inlet()
         self.measure = self.scene.make_measurements()
         self.budget = self.scene.make_budget()  # the particles' momentum budget, sampled with measure
@@ -399,7 +399,7 @@ class Simulation:
                     cd = self.gas.vtk_fields()["cell_data"]
                     gas_fields = {f"gas_{k}": v for k, v in cd.items()}
                 res.write_snapshot(t, sys_.step_count, pos=sys_.pos, vel=sys_.vel, omega=sys_.omega,
-                                   radius=sys_.radius, ids=sys_.ids, **gas_fields)
+                                   radius=sys_.radius, ids=sys_.ids, label=sys_.label, **gas_fields)
                 sch["snapshot"].advance(t, dt)
                 if self.measure is not None and self.measure.n_samples:
                     # the averages so far, so that a killed run keeps them
@@ -408,7 +408,7 @@ class Simulation:
                 self._write_scene_measurements(res)
             if pv is not None and (sch["vtk"].due(t, dt) or (final and last["vtk"] != sys_.step_count)):
                 pv.write(t, sys_.pos, sys_.radius, vel=sys_.vel, omega=sys_.omega, ids=sys_.ids,
-                         gas=self.gas.vtk_fields() if self.gas is not None else None,
+                         label=sys_.label, gas=self.gas.vtk_fields() if self.gas is not None else None,
                          meshes=sys_.mesh_surfaces() if sys_.nm else None)
                 sch["vtk"].advance(t, dt)
                 last["vtk"] = sys_.step_count

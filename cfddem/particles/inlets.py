@@ -117,8 +117,11 @@ class SluiceInlet:
     def __init__(self, *, width: float, height: float, z: float, diameter: float, density: float,
                  mass_rate: float, start_time: float = 0.0, end_time: float = math.inf, gap: float = 0.02,
                  diameter_max: float = 0.0, seed: int = 12345, retry_periods: float = 2.0,
-                 min_spacing: float | None = None, hold_length: float | None = None, shape=None):
-        self.shape = shape  # ClumpShape: pellets (monodisperse), None: spheres
+                 min_spacing: float | None = None, hold_length: float | None = None, shape=None,
+                 label: int = 0):
+        self.shape = shape
+        #: tracer label of the particles fed from now on (a scene may change it during the run)
+        self.label = int(label)  # ClumpShape: pellets (monodisperse), None: spheres
         if shape is not None and diameter_max > diameter:
             raise ValueError("a pellet feed is monodisperse (diameter_max must be 0)")
         dmax = max(diameter, diameter_max) if shape is None else bounding_diameter(shape)
@@ -210,11 +213,12 @@ class SluiceInlet:
             vel = np.zeros((int(free.sum()), 3))
             vel[:, 2] = self.velocity
             if self.shape is None:
-                system.add_particles(pos[free], vel, rad[free], self.density, held=self.hold_length > 0)
+                system.add_particles(pos[free], vel, rad[free], self.density, held=self.hold_length > 0,
+                                     label=self.label)
             else:
                 q = np.array([random_quaternions(np.random.default_rng([self.seed, k, int(i), 1]), 1)[0]
                               for i in sites[free]])
-                bids = system.add_clumps(self.shape, pos[free], quat=q, vel=vel)
+                bids = system.add_clumps(self.shape, pos[free], quat=q, vel=vel, label=self.label)
                 if self.hold_length > 0:
                     c = system.clumps
                     idx = np.arange(c.nb - len(bids), c.nb)  # add_clumps appends
@@ -287,7 +291,7 @@ class SluiceInlet:
         return {"layers_done": self.layers_done, "t_last": self.t_last, "mass_inserted": self.mass_inserted,
                 "count_inserted": self.count_inserted, "mass_dropped": self.mass_dropped,
                 "count_dropped": self.count_dropped, "pending_layer": pk, "pending_time": pt,
-                "pending_site": ps}
+                "pending_site": ps, "label": np.int64(self.label)}
 
     def set_state(self, s: dict) -> None:
         self.layers_done = int(s["layers_done"])
@@ -296,6 +300,7 @@ class SluiceInlet:
         self.count_inserted = int(s["count_inserted"])
         self.mass_dropped = float(s.get("mass_dropped", 0.0))
         self.count_dropped = int(s.get("count_dropped", 0))
+        self.label = int(s.get("label", self.label))  # checkpoints written before labels: the case's
         pk = np.asarray(s.get("pending_layer", np.zeros(0, np.int64)), np.int64).reshape(-1)
         pt = np.asarray(s.get("pending_time", np.zeros(0)), float).reshape(-1)
         ps = np.asarray(s.get("pending_site", np.zeros(0, np.int64)), np.int64).reshape(-1)

@@ -46,7 +46,7 @@ class StepStatus:
 
 
 _PARTICLE_ARRAYS = ("pos", "vel", "omega", "force", "torque", "radius", "mass", "inertia", "ids",
-                    "ext_force", "ext_torque", "prev", "ref", "body", "boff", "held")
+                    "ext_force", "ext_torque", "prev", "ref", "body", "boff", "held", "label")
 _WALL_ARRAYS = ("whist", "won", "wfn", "wfw", "wtw")
 # mesh-wall contact slots (cfddem.particles.mesh): mesh index (-1: free), last normal, last
 # contact point, tangential spring, overlap, |F_n|, force and torque on the mesh
@@ -152,13 +152,13 @@ class ParticleSystem:
         nw = max(self.nw, 1)
         K = self._K
         shapes = dict(pos=(cap, 3), vel=(cap, 3), omega=(cap, 3), force=(cap, 3), torque=(cap, 3),
-                      radius=(cap,), mass=(cap,), inertia=(cap,), ids=(cap,), ext_force=(cap, 3),
+                      radius=(cap,), mass=(cap,), inertia=(cap,), ids=(cap,), label=(cap,), ext_force=(cap, 3),
                       ext_torque=(cap, 3), prev=(cap,), ref=(cap, 3), body=(cap,), boff=(cap, 3), held=(cap,),
                       whist=(cap, nw, 3),
                       won=(cap, nw), wfn=(cap, nw), wfw=(cap, nw, 3), wtw=(cap, nw, 3),
                       ms_mesh=(cap, K), ms_n=(cap, K, 3), ms_q=(cap, K, 3), ms_h=(cap, K, 3),
                       ms_ov=(cap, K), ms_fn=(cap, K), ms_fw=(cap, K, 3), ms_tw=(cap, K, 3))
-        dtypes = dict(ids=np.int64, prev=np.int64, body=np.int64, won=np.uint8, held=np.uint8,
+        dtypes = dict(ids=np.int64, label=np.int64, prev=np.int64, body=np.int64, won=np.uint8, held=np.uint8,
                       ms_mesh=np.int64)
         for k, shp in shapes.items():
             a = np.zeros(shp, dtype=dtypes.get(k, np.float64))
@@ -193,6 +193,9 @@ class ParticleSystem:
     mass = property(lambda s: s._mass[: s.n])
     inertia = property(lambda s: s._inertia[: s.n])
     ids = property(lambda s: s._ids[: s.n])
+    #: tracer label per particle (colour or species; 0 unless set): kept through sorting, removal,
+    #: periodic wraps and checkpoints; clump members carry their clump's label
+    label = property(lambda s: s._label[: s.n])
     ext_force = property(lambda s: s._ext_force[: s.n])
     ext_torque = property(lambda s: s._ext_torque[: s.n])
 
@@ -207,8 +210,9 @@ class ParticleSystem:
         return self._npairs
 
     # ------------------------------------------------------------------ particles in/out
-    def add_particles(self, pos, vel, radius, density, omega=None, held: bool = False) -> np.ndarray:
-        """Append spheres; returns their new ids.  radius, density: scalars or (m,) arrays.
+    def add_particles(self, pos, vel, radius, density, omega=None, held: bool = False, label=0) -> np.ndarray:
+        """Append spheres; returns their new ids.  radius, density, label (tracer label, an
+        integer): scalars or (m,) arrays.
         m = rho 4/3 pi R^3, I = 2/5 m R^2.  Positions are wrapped into periodic boxes.
         ``held``: the new spheres move at their given velocity and spin, unaffected by forces,
         until :meth:`release` (a feed that pushes like a piston; they still push others)."""
@@ -220,8 +224,11 @@ class ParticleSystem:
         rad = np.broadcast_to(np.asarray(radius, float), (m,))
         rho = np.broadcast_to(np.asarray(density, float), (m,))
         om = np.zeros((m, 3)) if omega is None else np.broadcast_to(np.asarray(omega, float), (m, 3))
+        lab = np.broadcast_to(np.asarray(label), (m,))
         if m == 0:
             return np.zeros(0, np.int64)
+        if not np.issubdtype(lab.dtype, np.integer):
+            raise CaseError("label", "tracer labels must be integers")
         if not np.all(rad > 0):
             raise CaseError("radius", "particle radii must be positive")
         if not np.all(rho > 0):
@@ -243,6 +250,7 @@ class ParticleSystem:
         self._inertia[s] = 0.4 * self._mass[s] * rad**2
         ids = np.arange(self._next_id, self._next_id + m, dtype=np.int64)
         self._ids[s] = ids
+        self._label[s] = lab
         self._next_id += m
         for k in ("force", "torque", "ext_force", "ext_torque", "ref", "whist", "wfn", "wfw", "wtw"):
             getattr(self, "_" + k)[s] = 0.0
@@ -735,6 +743,21 @@ class ParticleSystem:
         self._held[: self.n][mask] = 0
         return int(mask.sum())
 
+    def set_label(self, mask, value) -> int:
+        """Give the particles where ``mask`` (length n) is True the tracer label ``value`` (an
+        integer); a clump member selected selects its whole clump.  Returns how many particles
+        were relabelled."""
+        mask = np.asarray(mask, bool)
+        if mask.shape != (self.n,):
+            raise CaseError("mask", f"needs shape ({self.n},), got {mask.shape}")
+        if not isinstance(value, (int, np.integer)):
+            raise CaseError("label", f"tracer labels must be integers, got {value!r}")
+        body = self._body[: self.n]
+        if self._has_clumps() and np.any(body[mask] >= 0):
+            mask = mask | ((body >= 0) & np.isin(body, body[mask & (body >= 0)]))
+        self._label[: self.n][mask] = int(value)
+        return int(mask.sum())
+
     # ------------------------------------------------------------------ mesh walls
     def _lookup(self, items, wall, what: str) -> int:
         """Index of ``wall`` (a name or an index) in ``items`` (``walls`` or ``meshes``)."""
@@ -899,11 +922,12 @@ class ParticleSystem:
     def _has_clumps(self) -> bool:
         return self.clumps is not None and self.clumps.nb > 0
 
-    def add_clumps(self, shape, com, quat=None, vel=None, omega=None) -> np.ndarray:
+    def add_clumps(self, shape, com, quat=None, vel=None, omega=None, label=0) -> np.ndarray:
         """Add rigid clumps of ``shape`` (:class:`cfddem.particles.clumps.ClumpShape`) with
         centres of mass ``com`` (m, 3), orientations ``quat`` (m, 4) (body principal frame ->
         lab; None: the orientation the shape was given in), velocities ``vel`` and spins
-        ``omega`` (lab frame).  Their member spheres become particles (``body`` >= 0).  Returns
+        ``omega`` (lab frame), tracer ``label`` (scalar or (m,) integers, given to every member).
+        Their member spheres become particles (``body`` >= 0).  Returns
         the clumps' body ids (stable; :meth:`body_index` gives their current index)."""
         com = np.atleast_2d(np.asarray(com, float))
         m = len(com)
@@ -931,7 +955,8 @@ class ParticleSystem:
         mvel = (v[:, None, :] + np.cross(w[:, None, :], s_lab)).reshape(-1, 3)
         rad = np.tile(shape.radii, m)
         first = self.n
-        self.add_particles(pos, mvel, rad, 1.0, omega=np.repeat(w, k, axis=0))
+        self.add_particles(pos, mvel, rad, 1.0, omega=np.repeat(w, k, axis=0),
+                           label=np.repeat(np.broadcast_to(np.asarray(label), (m,)), k))
         sl = slice(first, self.n)
         self._mass[sl] = np.tile(shape.member_mass, m)
         self._inertia[sl] = 0.4 * self._mass[sl] * rad**2
@@ -1024,8 +1049,8 @@ class ParticleSystem:
             if name in ("body", "boff") and "p_" + name not in state:  # written before clumps
                 getattr(self, "_" + name)[:n] = -1 if name == "body" else 0.0
                 continue
-            if name == "held" and "p_held" not in state:  # written before held feeds
-                self._held[:n] = 0
+            if name in ("held", "label") and "p_" + name not in state:  # written before held feeds / labels
+                getattr(self, "_" + name)[:n] = 0
                 continue
             a = np.asarray(state["p_" + name])
             getattr(self, "_" + name)[:n] = a.reshape(getattr(self, "_" + name)[:n].shape)

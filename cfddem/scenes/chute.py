@@ -48,6 +48,8 @@ class ChuteScene(Scene):
                                "until they are this far past the insertion plane, pushing what is ahead like the "
                                "material behind a sluice gate (default: one lattice period, about 1.3 d; 0: released "
                                "at once)", lo=0.0),
+            "label": Key("int", 0, "-", "tracer label of the fed particles (written with every snapshot and "
+                         "ParaView frame)"),
         },
         "exit": {
             "z": Key("float", None, "m", "particles with z beyond this plane leave the simulation "
@@ -143,7 +145,7 @@ class ChuteScene(Scene):
         return SluiceInlet(width=case.geometry.width, height=inl.height, z=inl.z, diameter=p.diameter,
                            diameter_max=p.diameter_max, seed=p.seed, density=p.density, mass_rate=inl.mass_rate,
                            start_time=inl.start_time, end_time=inl.end_time, gap=inl.gap,
-                           hold_length=inl.hold_length, shape=particle_shape(p))
+                           hold_length=inl.hold_length, shape=particle_shape(p), label=inl.label)
 
     @classmethod
     def expected_particles(cls, case) -> int:

@@ -199,12 +199,13 @@ def walls_bounding_box(walls: list[WallSpec], case) -> tuple[np.ndarray, np.ndar
 def initial_particles(case) -> dict[str, np.ndarray]:
     """Initial particles from [[particles.initial]] and/or particles.initial_file."""
     d = case.particles.diameter
-    pos, vel, om, rad = [], [], [], []
+    pos, vel, om, rad, lab = [], [], [], [], []
     for t in case.particles.initial:
         pos.append(t["pos"])
         vel.append(t.get("vel", [0.0, 0.0, 0.0]))
         om.append(t.get("omega", [0.0, 0.0, 0.0]))
         rad.append(float(t.get("radius", d / 2)))
+        lab.append(int(t.get("label", 0)))
     if case.particles.initial_file:
         f = case.path / case.particles.initial_file
         data = read_particle_file(f)
@@ -212,17 +213,20 @@ def initial_particles(case) -> dict[str, np.ndarray]:
         vel.extend(data["vel"].tolist())
         om.extend(data["omega"].tolist())
         rad.extend(data["radius"].tolist())
+        lab.extend(data["label"].tolist())
     out = {
         "pos": np.array(pos, float).reshape(-1, 3),
         "vel": np.array(vel, float).reshape(-1, 3),
         "omega": np.array(om, float).reshape(-1, 3),
         "radius": np.array(rad, float),
+        "label": np.array(lab, np.int64),
     }
     return out
 
 
 def read_particle_file(f) -> dict[str, np.ndarray]:
-    """CSV (header x,y,z,vx,vy,vz,wx,wy,wz,radius; velocities/spins optional) or HDF5."""
+    """CSV (header x,y,z,vx,vy,vz,wx,wy,wz,radius,label; velocities, spins and labels optional)
+    or HDF5 (datasets pos, radius; optional vel, omega, label)."""
     key = "particles.initial_file"
     try:
         if f.suffix.lower() == ".csv":
@@ -240,6 +244,7 @@ def read_particle_file(f) -> dict[str, np.ndarray]:
             vel = np.stack([col("vx"), col("vy"), col("vz")], axis=1)
             om = np.stack([col("wx"), col("wy"), col("wz")], axis=1)
             rad = col("radius")
+            lab = col("label")
         else:
             import h5py
 
@@ -250,15 +255,18 @@ def read_particle_file(f) -> dict[str, np.ndarray]:
                 rad = np.asarray(h["radius"], float).ravel()
                 vel = np.asarray(h["vel"], float).reshape(-1, 3) if "vel" in h else np.zeros_like(pos)
                 om = np.asarray(h["omega"], float).reshape(-1, 3) if "omega" in h else np.zeros_like(pos)
+                lab = np.asarray(h["label"]).ravel() if "label" in h else np.zeros(len(pos))
     except CaseError:
         raise
     except (OSError, ValueError) as e:
         raise CaseError(key, f"cannot read {f.name}: {e}") from None
     n = len(pos)
-    if not (len(rad) == len(vel) == len(om) == n):
+    if not (len(rad) == len(vel) == len(om) == len(lab) == n):
         raise CaseError(key, f"{f.name}: columns have different lengths")
+    if not np.all(np.isfinite(lab)) or np.any(lab != np.round(lab)):
+        raise CaseError(key, f"{f.name}: label must be an integer (row {int(np.argmax(lab != np.round(lab)))})")
     if not np.all(np.isfinite(pos)) or not np.all(np.isfinite(rad)):
         raise CaseError(key, f"{f.name}: non-finite positions or radii")
     if n and rad.min() <= 0:
         raise CaseError(key, f"{f.name}: radius must be positive (row {int(np.argmin(rad))})")
-    return {"pos": pos, "vel": vel, "omega": om, "radius": rad}
+    return {"pos": pos, "vel": vel, "omega": om, "radius": rad, "label": np.asarray(lab).astype(np.int64)}

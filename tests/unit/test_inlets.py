@@ -35,7 +35,7 @@ class FakeSystem:
     def release(self, mask):
         return int(np.sum(mask))
 
-    def add_particles(self, pos, vel, radius, density, omega=None, held=False):
+    def add_particles(self, pos, vel, radius, density, omega=None, held=False, label=0):
         self.pos = np.concatenate([self.pos, pos])
         self.vel = np.concatenate([self.vel, vel])
         self.radius = np.concatenate([self.radius, radius])
