@@ -654,6 +654,47 @@ def reduce_walls(n, nw, won, wfw, wtw, fout, tout):
                     tout[w, c] += wtw[i, w, c]
 
 
+@kernel
+def velocity_zones(n, pos, vel, body, held, zones, nz):
+    """Velocity zones (a feeder): each row of ``zones`` is (lo x, y, z, hi x, y, z, axis, value);
+    a free sphere (not a clump member, not held) whose centre lies in a zone gets its velocity
+    component ``axis`` set to ``value`` (the first zone that holds it).  Returns how many were set."""
+    cnt = 0
+    for i in range(n):
+        if body[i] >= 0 or held[i] != 0:
+            continue
+        for z in range(nz):
+            if (zones[z, 0] <= pos[i, 0] < zones[z, 3] and zones[z, 1] <= pos[i, 1] < zones[z, 4]
+                    and zones[z, 2] <= pos[i, 2] < zones[z, 5]):
+                vel[i, int(zones[z, 6])] = zones[z, 7]
+                cnt += 1
+                break
+    return cnt
+
+
+@kernel
+def clump_velocity_zones(nb, start, members, com, bvel, vfix, pvel, zones, nz):
+    """:func:`velocity_zones` for rigid clumps: a clump whose centre of mass lies in a zone gets its
+    velocity component set, and its members' velocities change by the same amount (their spin
+    part is unchanged).  A clump whose component is held (``vfix``) is skipped.  Returns how many
+    clumps were set."""
+    cnt = 0
+    for b in range(nb):
+        for z in range(nz):
+            if (zones[z, 0] <= com[b, 0] < zones[z, 3] and zones[z, 1] <= com[b, 1] < zones[z, 4]
+                    and zones[z, 2] <= com[b, 2] < zones[z, 5]):
+                a = int(zones[z, 6])
+                if vfix[b, a] != 0.0:
+                    break
+                dv = zones[z, 7] - bvel[b, a]
+                bvel[b, a] = zones[z, 7]
+                for k in range(start[b], start[b + 1]):
+                    pvel[members[k], a] += dv
+                cnt += 1
+                break
+    return cnt
+
+
 kick_drift_s = serial_twin(kick_drift)
 pair_forces_s = serial_twin(pair_forces)
 gather_walls_kick_s = serial_twin(gather_walls_kick)

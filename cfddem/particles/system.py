@@ -145,6 +145,9 @@ class ParticleSystem:
         self._moving = np.flatnonzero(np.any(self._wgeom[: self.nw, 16:19] != 0.0, axis=1))
         # rigid clumps (cfddem.particles.clumps): None until add_clumps is called
         self.clumps = None
+        # velocity zones (add_velocity_zone): rows (lo xyz, hi xyz, axis, value); bodies set last step
+        self._zones = np.zeros((0, 8))
+        self.zone_count = 0
 
     # ------------------------------------------------------------------ storage
     def _alloc_particles(self, cap):
@@ -523,9 +526,12 @@ class ParticleSystem:
                     return self._fail("overflow_unrecoverable", -1, float("nan"),
                                       f"step {self.step_count + 1}: neighbour list could not grow ({exc})",
                                       s)
-            bad = self._forces(kick=True, dt_hist=dt, drift_next=s < n_steps - 1 and not clumped)
+            zoned = len(self._zones) > 0
+            bad = self._forces(kick=True, dt_hist=dt, drift_next=s < n_steps - 1 and not clumped and not zoned)
             if clumped:
                 bad += self._clump_close(True)
+            if zoned:
+                self._apply_zones()
             self.time += dt
             self.step_count += 1
             if bad:
@@ -729,6 +735,39 @@ class ParticleSystem:
             contacts = contacts - f
         return dict(gravity=g, centrifugal=cen, coriolis=cor, walls=walls, meshes=meshes, contacts=contacts,
                     external=self.ext_force.copy(), held=self.held)
+
+    # ------------------------------------------------------------------ velocity zones
+    def add_velocity_zone(self, lo, hi, axis: int, value: float) -> None:
+        """A feeder: from now on, at the end of every step, every free sphere whose centre lies in
+        the box ``lo`` <= r < ``hi`` (and every clump whose centre of mass does) gets its velocity
+        component ``axis`` (0, 1, 2) set to ``value``.  This is the feeder of the blending
+        thesis, a body force m (value - v)/dt with v the velocity of the previous step: the
+        contacts and gravity of the next step still act on the particle (it drifts at value +
+        dt/2 a and ends the step at value again).  Held particles are
+        left alone.  The other components are untouched.  Zones are configuration, not state:
+        whoever builds the system adds them again after a restart."""
+        lo = np.asarray(lo, float).reshape(3)
+        hi = np.asarray(hi, float).reshape(3)
+        if not np.all(hi > lo):
+            raise CaseError("zone", f"needs hi > lo on every axis (lo {lo.tolist()}, hi {hi.tolist()})")
+        if axis not in (0, 1, 2):
+            raise CaseError("zone", f"axis must be 0, 1 or 2, got {axis!r}")
+        if not math.isfinite(value):
+            raise CaseError("zone", f"velocity must be finite, got {value!r}")
+        row = np.concatenate([lo, hi, [float(axis), float(value)]])
+        self._zones = np.vstack([self._zones, row[None, :]])
+
+    def clear_velocity_zones(self) -> None:
+        self._zones = np.zeros((0, 8))
+
+    def _apply_zones(self) -> None:
+        nz = len(self._zones)
+        cnt = it.velocity_zones(self.n, self._pos, self._vel, self._body, self._held, self._zones, nz)
+        if self._has_clumps():
+            c = self.clumps
+            cnt += it.clump_velocity_zones(c.nb, c.start, c.members, c._com, c._vel, c._vfix, self._vel,
+                                           self._zones, nz)
+        self.zone_count = int(cnt)
 
     # ------------------------------------------------------------------ held particles
     @property

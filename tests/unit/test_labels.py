@@ -126,3 +126,49 @@ def test_bad_label_in_case_names_the_key(tmp_path):
     (d / "p.csv").write_text("x,y,z,radius,label\n0.01,0.01,0,0.0015,2.5\n")
     with pytest.raises(CaseError, match="label must be an integer"):  # checked before any run folder
         load_case(d)
+
+
+# ---------------------------------------------------------------------------- velocity zones
+def _column(clumps: bool):
+    """Particles falling in a periodic vertical column through a feeder zone that holds v_y."""
+    s = ParticleSystem(pp=PP, walls=[], dt=2e-5, gravity=(0.0, -9.81, 0.0),
+                       periodic=(None, (0.0, 0.2), None))
+    s.add_velocity_zone([-1, 0.0, -1], [1, 0.05, 1], 1, -0.4)
+    pos = [[0.01 * k, 0.19, 0.0] for k in range(4)]
+    if clumps:
+        s.add_clumps(pellet(2, 0.003, 2500.0), pos, vel=[[0.0, 0.0, 0.1]] * 4, omega=[[0, 0, 30.0]] * 4)
+    else:
+        s.add_particles(pos, [0.0, 0.0, 0.1], 0.0015, 2500.0)
+    return s
+
+
+@pytest.mark.parametrize("clumps", [False, True])
+def test_velocity_zone_holds_the_feed_velocity_and_leaves_the_rest(clumps):
+    s = _column(clumps)
+    s.step(5000)  # 0.1 s: free fall from y = 0.19 m, not yet in the zone
+    v = s.clumps.vel if clumps else s.vel
+    assert s.zone_count == 0
+    np.testing.assert_allclose(v[:, 1], -9.81 * 0.1, rtol=1e-9)
+    s.step(5000)  # 0.2 s: reached the zone (y < 0.05 m after 0.17 s) and are fed through it
+    v = s.clumps.vel if clumps else s.vel
+    com = s.clumps.com if clumps else s.pos
+    inside = com[:, 1] < 0.05
+    assert inside.any() and s.zone_count == int(inside.sum())
+    # the component ends every step at the zone's value; a particle that entered during the last
+    # step had fallen freely until then
+    np.testing.assert_allclose(v[inside, 1], -0.4, rtol=1e-12)
+    np.testing.assert_allclose(v[:, 2], 0.1, rtol=1e-12)  # other components untouched
+    if clumps:  # members move with their body: v_member = v_body + w x r
+        c = s.clumps
+        for b in range(c.nb):
+            mem = c.members[c.start[b]:c.start[b + 1]]
+            r = s.pos[mem] - c.com[b]
+            np.testing.assert_allclose(s.vel[mem], c.vel[b] + np.cross(c.omega()[b], r), atol=1e-12)
+
+
+def test_velocity_zone_bad_input():
+    s = ParticleSystem(pp=PP, walls=[], dt=2e-5)
+    with pytest.raises(CaseError, match="hi > lo"):
+        s.add_velocity_zone([0, 0, 0], [1, 0, 1], 1, 0.4)
+    with pytest.raises(CaseError, match="axis"):
+        s.add_velocity_zone([0, 0, 0], [1, 1, 1], 3, 0.4)
