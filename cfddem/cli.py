@@ -17,6 +17,7 @@ writing a checkpoint).
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 
 from .errors import CaseError, CfddemError, RunError
@@ -61,6 +62,11 @@ def _parser() -> argparse.ArgumentParser:
     acc.add_argument("sweep_dir", help="a folder written by cfddem sweep")
     acc.add_argument("--reference", help="the variant (folder name) taken as the most accurate run")
     acc.add_argument("--out", help="output folder (default: the sweep folder)")
+
+    blr = sub.add_parser("blending-report", help="one report (concentration, VRR, RTD, velocity maps, cost) of a "
+                                                 "blending sweep folder")
+    blr.add_argument("sweep_dir", help="a folder written by cfddem sweep over silo-blender variants")
+    blr.add_argument("--out", help="report folder (default: SWEEP_DIR/blending_report)")
 
     try:
         from .sweep import add_sweep_parser
@@ -169,6 +175,15 @@ def _dispatch(args) -> int:
             print(f"  {e['name']}: {e['status']}, wall {e['wall_time']:.1f} s, bed height RMS "
                   f"{e['bed_height_rms_mm']:.3f} mm, surface velocity RMS {100 * e['surface_velocity_rel_rms']:.2f} %"
                   + (" (within the experimental error)" if e.get("within_bands") else ""))
+        return 0
+    if args.command == "blending-report":
+        from .report.blending import blending_report
+
+        res = blending_report(args.sweep_dir, out=args.out)
+        for e in res["rows"]:
+            print(f"  {e['name']}: {e['status']}" + (f", {e['flow_pattern']} flow" if e.get("flow_pattern") else "")
+                  + (f", VRR {e['vrr']:.3g}" if isinstance(e.get("vrr"), float) and math.isfinite(e["vrr"]) else ""))
+        print(f"report: {res['files'][0]}")
         return 0
     if args.command == "sweep":
         from .sweep import run_sweep_from_args

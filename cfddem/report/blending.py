@@ -1,0 +1,251 @@
+"""One report for a blending study: ``cfddem blending-report SWEEP_DIR [--out DIR]``.
+
+A blending study is a :mod:`cfddem.sweep` over silo-blender variants (the two flow patterns of
+``cases/blender_flat_*``, the three inserts of ``cases/blender_multiflow``, batch fractions,
+sub-layers...).  This module reads every finished variant's ``results.h5`` and writes, into one
+folder:
+
+* ``blending_concentration.png``: the tracer concentration in the outflow against the number of
+  recirculations N_r = t / t_mean (against time where t_mean is unknown), one line per variant,
+  with the mean tracer fraction of the silo content dashed (where it tends to);
+* ``blending_vrr.png``: the variance reduction ratio against N_r (log axis), or per variant when
+  only the scalar over the analysed window was stored;
+* ``blending_rtd.png``: the residence time distributions E(theta) and F(theta) per variant;
+* ``blending_fields.png``: the time-averaged speed per variant with the flow-channel boundary
+  and the flow-pattern class;
+* ``blending_report.md`` and ``blending_summary.json``: one row per variant: flow pattern, VRR,
+  t_mean, the recirculations reached, RTD first appearance and peak, particles, simulated time,
+  wall time and the cost per simulated second.
+
+It reads the contract of the blending issue: ``/measurements/blending/{time, concentration_out,
+vrr}`` and, where they exist, ``/measurements/blending/{n_recirculations, t_mean,
+content_fraction, vrr_recirculations, vrr_by_recirculation}``, ``/measurements/rtd/{theta, E,
+F}``, ``/measurements/flow_pattern`` and the silo's velocity field and channel
+(``/measurements/silo/field``, ``/measurements/silo/channel``).  A variant without blending
+measurements is listed with its status and left out of the plots.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import CaseError
+
+
+def _f(x, default=math.nan) -> float:
+    try:
+        v = float(np.asarray(x).reshape(-1)[0]) if np.asarray(x).size else default
+    except (TypeError, ValueError):
+        return default
+    return v
+
+
+def _s(x) -> str:
+    if isinstance(x, bytes):
+        return x.decode()
+    if isinstance(x, np.ndarray) and x.shape == ():
+        return _s(x[()])
+    return str(x)
+
+
+def read_blend_run(run_dir) -> dict | None:
+    """The blending measurements of one run folder (None without ``results.h5``)."""
+    from ..io.results import read_measurements, read_metadata
+
+    run_dir = Path(run_dir)
+    h5 = run_dir / "results.h5"
+    if not h5.exists():
+        return None
+    m = read_measurements(h5)
+    b = m.get("blending", {})
+    r: dict = {"name": run_dir.name, "dir": str(run_dir), "has_blending": "concentration_out" in b}
+    r["time"] = np.asarray(b.get("time", []), float)
+    r["c_out"] = np.asarray(b.get("concentration_out", []), float)
+    r["vrr"] = _f(b.get("vrr", math.nan))
+    r["t_mean"] = _f(b.get("t_mean", math.nan))
+    nr = b.get("n_recirculations")
+    if nr is not None and np.asarray(nr).shape == r["time"].shape:
+        r["n_r"] = np.asarray(nr, float)
+    elif math.isfinite(r["t_mean"]) and r["t_mean"] > 0:
+        r["n_r"] = r["time"] / r["t_mean"]
+    else:
+        r["n_r"] = None
+    r["content_fraction"] = _f(b.get("content_fraction", math.nan))
+    r["vrr_nr"] = np.asarray(b.get("vrr_recirculations", []), float)
+    r["vrr_by_nr"] = np.asarray(b.get("vrr_by_recirculation", []), float)
+    rtd = m.get("rtd", {})
+    r["theta"] = np.asarray(rtd.get("theta", []), float)
+    r["E"] = np.asarray(rtd.get("E", []), float)
+    r["F"] = np.asarray(rtd.get("F", []), float)
+    r["rtd_first"] = _f(rtd.get("first_appearance", math.nan))
+    r["rtd_peak"] = _f(rtd.get("peak", math.nan))
+    r["flow_pattern"] = _s(m["flow_pattern"]) if "flow_pattern" in m else ""
+    silo = m.get("silo", {})
+    r["field"] = silo.get("field")
+    r["channel"] = silo.get("channel")
+    info = json.loads((run_dir / "run.json").read_text()) if (run_dir / "run.json").exists() else {}
+    r["wall_time"] = _f(info.get("wall_time", read_metadata(h5).get("wall_time", math.nan)))
+    r["sim_time"] = _f(info.get("time", math.nan))
+    r["n_particles"] = _f(info.get("n_particles", math.nan))
+    return r
+
+
+def _cost_row(r: dict) -> dict:
+    wall, sim = r["wall_time"], r["sim_time"]
+    per_s = wall / sim if (math.isfinite(wall) and math.isfinite(sim) and sim > 0) else math.nan
+    return {"wall_time_s": wall, "simulated_time_s": sim, "wall_per_simulated_s": per_s,
+            "hours_per_simulated_s": per_s / 3600.0}
+
+
+def _xaxis(r: dict):
+    return (r["n_r"], "number of recirculations N_r = t / t_mean") if r["n_r"] is not None else \
+        (r["time"], "time (s)")
+
+
+def _plots(runs: list[dict], out: Path) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    files: list[Path] = []
+    blend = [r for r in runs if r["has_blending"] and len(r["time"])]
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    col = {r["name"]: colours[i % len(colours)] for i, r in enumerate(blend)}
+    if blend:
+        fig, ax = plt.subplots(figsize=(7, 4.2))
+        xl = ""
+        for r in blend:
+            x, xl = _xaxis(r)
+            ax.plot(x, r["c_out"], "-", lw=1.2, color=col[r["name"]], label=r["name"])
+            if math.isfinite(r["content_fraction"]):
+                ax.axhline(r["content_fraction"], ls="--", lw=1, color=col[r["name"]])
+        ax.set_xlabel(xl)
+        ax.set_ylabel("tracer mass fraction in the outflow")
+        ax.set_ylim(-0.02, 1.02)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="best")
+        ax.set_title("outflow concentration (dashed: the silo content's mean)", fontsize=10)
+        fig.tight_layout()
+        files.append(out / "blending_concentration.png")
+        fig.savefig(files[-1], dpi=120)
+        plt.close(fig)
+
+        fig, ax = plt.subplots(figsize=(6, 4))
+        curves = [r for r in blend if len(r["vrr_nr"]) and len(r["vrr_nr"]) == len(r["vrr_by_nr"])]
+        if curves:
+            for r in curves:
+                ok = np.isfinite(r["vrr_by_nr"]) & (r["vrr_by_nr"] > 0)
+                ax.plot(r["vrr_nr"][ok], r["vrr_by_nr"][ok], "o-", color=col[r["name"]], label=r["name"])
+            ax.set_xlabel("number of recirculations N_r")
+        else:
+            names = [r["name"] for r in blend]
+            vals = [r["vrr"] if math.isfinite(r["vrr"]) and r["vrr"] > 0 else np.nan for r in blend]
+            ax.bar(range(len(names)), vals, color=[col[n] for n in names])
+            ax.set_xticks(range(len(names)), names, rotation=30, ha="right", fontsize=8)
+        ax.set_yscale("log")
+        ax.set_ylabel("variance reduction ratio VRR")
+        ax.grid(alpha=0.3, which="both")
+        if curves:
+            ax.legend(fontsize=8)
+        fig.tight_layout()
+        files.append(out / "blending_vrr.png")
+        fig.savefig(files[-1], dpi=120)
+        plt.close(fig)
+
+    rtd = [r for r in runs if len(r["theta"]) and len(r["E"]) == len(r["theta"])]
+    if rtd:
+        fig, (a1, a2) = plt.subplots(1, 2, figsize=(9, 3.8))
+        for r in rtd:
+            c = col.get(r["name"])
+            a1.plot(r["theta"], r["E"], "-", color=c, label=r["name"])
+            if len(r["F"]) == len(r["theta"]):
+                a2.plot(r["theta"], r["F"], "-", color=c, label=r["name"])
+        a1.set_xlabel("theta = t / t_mean")
+        a1.set_ylabel("E(theta)")
+        a2.set_xlabel("theta = t / t_mean")
+        a2.set_ylabel("F(theta)")
+        a2.set_ylim(-0.02, 1.02)
+        for a in (a1, a2):
+            a.grid(alpha=0.3)
+        a1.legend(fontsize=8)
+        fig.tight_layout()
+        files.append(out / "blending_rtd.png")
+        fig.savefig(files[-1], dpi=120)
+        plt.close(fig)
+
+    fld = [r for r in runs if isinstance(r["field"], dict) and np.any(np.isfinite(r["field"].get("vx", [np.nan])))]
+    if fld:
+        k = len(fld)
+        fig, axes = plt.subplots(1, k, figsize=(3.2 * k + 0.8, 5.2), squeeze=False)
+        vmax = max(float(np.nanmax(np.hypot(r["field"]["vx"], r["field"]["vy"]))) for r in fld)
+        im = None
+        for a, r in zip(axes[0], fld):
+            f = r["field"]
+            x, y = np.asarray(f["x"]), np.asarray(f["y"])
+            sp = np.hypot(f["vx"], f["vy"])
+            dx, dy = x[1] - x[0], y[1] - y[0]
+            ext = [(x[0] - dx / 2) * 1e3, (x[-1] + dx / 2) * 1e3, (y[0] - dy / 2) * 1e3, (y[-1] + dy / 2) * 1e3]
+            im = a.imshow(np.ma.masked_invalid(sp), origin="lower", extent=ext, aspect="equal", cmap="viridis",
+                          vmin=0.0, vmax=vmax)
+            ch = r["channel"]
+            if isinstance(ch, dict) and "x_left" in ch:
+                a.plot(np.asarray(ch["x_left"]) * 1e3, np.asarray(ch["y"]) * 1e3, "r-", lw=1.3)
+                a.plot(np.asarray(ch["x_right"]) * 1e3, np.asarray(ch["y"]) * 1e3, "r-", lw=1.3)
+            a.set_title(r["name"] + (f"\n{r['flow_pattern']} flow" if r["flow_pattern"] else ""), fontsize=9)
+            a.set_xlabel("x (mm)")
+        axes[0][0].set_ylabel("y (mm)")
+        fig.colorbar(im, ax=list(axes[0]), label="time-averaged speed (m/s)", shrink=0.8)
+        files.append(out / "blending_fields.png")
+        fig.savefig(files[-1], dpi=120)
+        plt.close(fig)
+    return files
+
+
+def _fmt(v, spec=".3g") -> str:
+    return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, spec)
+
+
+def blending_report(sweep_dir, out=None) -> dict:
+    """Read every variant of a sweep folder (its ``summary.csv``) and write the report; returns
+    ``{"rows": [...], "files": [...]}``."""
+    from .speed_accuracy import _read_rows
+
+    sweep_dir = Path(sweep_dir)
+    out = Path(out) if out else sweep_dir / "blending_report"
+    rows = _read_rows(sweep_dir)
+    runs, table = [], []
+    for row in rows:
+        r = read_blend_run(sweep_dir / row["name"])
+        entry = {"name": row["name"], "status": row.get("status", "")}
+        if r is not None:
+            runs.append(r)
+            n_r_end = float(r["n_r"][-1]) if r["n_r"] is not None and len(r["n_r"]) else math.nan
+            entry.update(flow_pattern=r["flow_pattern"], vrr=r["vrr"], t_mean_s=r["t_mean"],
+                         recirculations=n_r_end, rtd_first_theta=r["rtd_first"], rtd_peak_theta=r["rtd_peak"],
+                         n_particles=r["n_particles"], has_blending=r["has_blending"], **_cost_row(r))
+        table.append(entry)
+    if not runs:
+        raise CaseError("SWEEP_DIR", f"{sweep_dir}: no variant with a results.h5")
+    out.mkdir(parents=True, exist_ok=True)
+    files = _plots(runs, out)
+    lines = ["# Blending study", "", f"Sweep folder: `{sweep_dir}`", "",
+             "| variant | status | flow pattern | VRR | t_mean (s) | N_r reached | RTD first (theta) | "
+             "RTD peak (theta) | particles | simulated (s) | wall (s) | h per simulated s |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for e in table:
+        lines.append("| " + " | ".join([
+            e["name"], e["status"], e.get("flow_pattern") or "-", _fmt(e.get("vrr")), _fmt(e.get("t_mean_s")),
+            _fmt(e.get("recirculations"), ".2f"), _fmt(e.get("rtd_first_theta")), _fmt(e.get("rtd_peak_theta")),
+            _fmt(e.get("n_particles"), ".0f"), _fmt(e.get("simulated_time_s")), _fmt(e.get("wall_time_s"), ".0f"),
+            _fmt(e.get("hours_per_simulated_s"))]) + " |")
+    lines += ["", *[f"![{f.stem}]({f.name})" for f in files], ""]
+    (out / "blending_report.md").write_text("\n".join(lines))
+    (out / "blending_summary.json").write_text(json.dumps(
+        [{k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in e.items()} for e in table],
+        indent=1))
+    return {"rows": table, "files": [out / "blending_report.md", *files]}
