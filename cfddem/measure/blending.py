@@ -290,7 +290,8 @@ def rtd_from_step(time, c, c_step: float = 1.0, c_before: float = 0.0, t_mean: f
     ``c_step`` at ``t_inject``: F(theta) = (c - c_before) / (c_step - c_before) (the normalised
     outflow concentration), E = dF/dtheta (``np.gradient``, second order), theta =
     (t - t_inject) / t_mean.  NaN intervals are filled by linear interpolation.  t_mean defaults
-    to int (1 - F) dt over the record (the record must reach F = 1 for that).  The moments are
+    to int (1 - F) dt from t_inject (where F = 0) over the record (the record must reach F = 1
+    for that).  The moments are
     those of E (:func:`rtd_stats`)."""
     if c_step == c_before:
         raise ValueError("a step needs c_step != c_before")
@@ -298,8 +299,9 @@ def rtd_from_step(time, c, c_step: float = 1.0, c_before: float = 0.0, t_mean: f
     keep = t >= 0
     t = t[keep]
     F = (_fill_gaps(t, np.asarray(c, float).ravel()[keep]) - c_before) / (c_step - c_before)
-    if t_mean is None:
-        t_mean = float(trapezoid(1.0 - F, t))
+    if t_mean is None:  # F = 0 at the injection itself (no residence time is zero)
+        t0 = [0.0] if t[0] > 0 else []
+        t_mean = float(trapezoid(1.0 - np.concatenate([t0, F]), np.concatenate([t0, t])))
     th = t / t_mean
     E = np.gradient(F, th)
     out = {"theta": th, "E": E, "F": F}
