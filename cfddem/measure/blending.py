@@ -510,7 +510,8 @@ def classify_flow_pattern(x, y, vy, fill_height: float | None = None, fraction: 
     The transition height h_t is the bottom of the lowest row from which every row up to H
     reaches the walls (NaN when the top row does not).  Classes:
 
-    - "mass": every analysed row reaches the walls (nothing stagnant above the outlet region);
+    - "mass": every analysed row reaches the walls (the channel spans the full width at every
+      height above the outlet region);
     - "semi-mass": h_t / H <= ``semi_mass_max`` (0.5): stagnant zones only in the lower part,
       at the bottom corners;
     - "internal": the channel is narrower than the silo up to the free surface (h_t NaN), or
