@@ -190,6 +190,26 @@ def test_virtual_tracers_in_a_uniform_downward_field_give_plug_flow_at_h_over_v(
     assert a["mean"] == pytest.approx(0.5, rel=1e-9) and a["variance"] == pytest.approx(1 / 12, rel=1e-3)
 
 
+def test_flux_weighted_virtual_tracers_have_the_mean_residence_time_volume_over_flow_rate():
+    # a sheared downward field, speed rising linearly from 0.01 m/s at x = 0.005 to 0.03 at 0.145
+    # (exact in bilinear interpolation; constant in the outer half bins).  Material crossing the line
+    # y = h has mean residence time V / Q = h W / int v dx (the mean-residence-time theorem), which
+    # the flux weights give; uniform weights over-weight the slow side: mean of h / v(x) over x.
+    v = 0.01 + 0.02 * (XC - XC[0]) / (XC[-1] - XC[0])
+    vy = np.tile(-v, (27, 1))
+    xs = np.concatenate([[0.0], XC, [W]])
+    vs = np.concatenate([[v[0]], v, [v[-1]]])
+    Q = np.trapezoid(vs, xs)
+    h = 0.2
+    start = release_line(XC, h, 3000)
+    r = virtual_tracer_rtd(XC, YC, np.zeros_like(vy), vy, start, y_outlet=0.0, t_mean=h * W / Q)
+    assert r["n_arrived"] == 3000 and r["mean"] == pytest.approx(1.0, abs=1e-4)
+    assert r["theta_s"] == pytest.approx(Q / (W * 0.03), rel=1e-6)  # the fastest streamline first
+    u = virtual_tracer_rtd(XC, YC, np.zeros_like(vy), vy, start, y_outlet=0.0, t_mean=h * W / Q, weights="uniform")
+    expect = np.mean(h / np.interp(start[:, 0], xs, vs)) / (h * W / Q)
+    assert u["mean"] == pytest.approx(expect, rel=1e-6) and u["mean"] > 1.05
+
+
 def test_stuck_tracers_in_a_stagnant_side_zone_are_counted_and_excluded():
     # moving at 0.02 m/s left of x = 0.1 (bin centres up to 0.095), at rest from the bin centred at
     # 0.105: bilinear speed between 0.095 and 0.105 falls linearly, below 1 % of 0.02 for
@@ -255,3 +275,18 @@ def test_blending_arrays_round_trip_through_the_results_file(tmp_path):
     assert back["rtd"]["E"] == pytest.approx(rtd["E"]) and back["flow_pattern"] == "semi-mass"
     with pytest.raises(ValueError, match="flow_pattern"):
         blending_arrays(t, t, 1.0, flow_pattern="funnel")
+
+
+def test_bad_input_is_refused_with_a_message():
+    t = np.arange(10) * 0.1
+    with pytest.raises(ValueError, match="either c_in"):
+        vrr_by_recirculation(t, t, 0.5)
+    with pytest.raises(ValueError, match="uniformly spaced"):
+        convolve_rtd(t ** 2, t, [0.0, 1.0], [1.0, 1.0], 1.0)
+    with pytest.raises(ValueError, match="same time base"):
+        variance_reduction_ratio(t, t[:5])
+    with pytest.raises(ValueError, match="unequal length"):
+        outflow_concentration(t, t[:3], t, 0.1)
+    with pytest.raises(ValueError, match="no virtual tracer reached"):
+        virtual_tracer_rtd(XC, YC, np.zeros((27, 15)), np.full((27, 15), -0.02), [[0.05, 0.1]], y_outlet=0.0,
+                           t_max=1.0)
