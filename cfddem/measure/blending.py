@@ -215,8 +215,8 @@ def rtd_from_residence_times(t_res, t_mean: float | None = None, weights=None, d
 
     E(theta) is the weighted histogram density on bins of width ``dtheta`` from 0 to
     ``theta_max`` (default: one empty bin past the bin of the largest theta, so that F ends at 1),
-    ``theta`` the bin centres, F the integral of E at the bin centres.  t_mean defaults to the weighted mean residence time.
-    The moments come from the samples themselves, not from the histogram: ``mean`` and
+    ``theta`` the bin centres, F the integral of E at the bin centres.  t_mean defaults to the
+    weighted mean residence time.  The moments come from the samples themselves, not from the histogram: ``mean`` and
     ``variance`` of theta (weighted), ``theta_s`` = the smallest theta, ``peak`` = the weighted
     mean theta of the samples in the fullest bin (this one depends on ``dtheta``)."""
     t = np.asarray(t_res, float).ravel()
