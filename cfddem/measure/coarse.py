@@ -503,3 +503,195 @@ def janssen(z, H: float, gamma: float, W: float, T: float, K: float, mu_side: fl
     z = np.asarray(z, float)
     zc = W * T / (2.0 * K * (mu_side * T + mu_front * W))
     return np.where(z < H, gamma * zc * (1.0 - np.exp(-(H - z) / zc)), 0.0)
+
+
+# --------------------------------------------------------------------------------- runs
+def load_run_state(src, case_dir=None):
+    """The particle system of a run at a checkpoint: ``src`` a run folder (its newest valid
+    checkpoint) or a checkpoint file (``RUN/checkpoints/ckpt_*.h5``).  The case is the run's
+    ``case.resolved.toml`` (``case_dir``: the original case folder instead, when the case
+    refers to files by relative paths, e.g. mesh walls).  Returns (system, case, checkpoint
+    path); the system is rebuilt as ``cfddem run --resume`` does, so its pair forces are those
+    of the saved state."""
+    from pathlib import Path
+
+    from cfddem.config import load_case
+    from cfddem.io.checkpoint import latest_checkpoint, read_checkpoint
+    from cfddem.simulation import Simulation
+
+    src = Path(src)
+    if src.is_dir():
+        found = latest_checkpoint(src / "checkpoints" if (src / "checkpoints").is_dir() else src)
+        if found is None:
+            raise CaseError("RUN_DIR_OR_CHECKPOINT", f"no valid checkpoint in {src} (set checkpoint.interval "
+                            "or checkpoint.every_steps in the run's case)")
+        path, state = found
+        run = src if (src / "checkpoints").is_dir() else src.parent
+    elif src.is_file():
+        try:
+            state = read_checkpoint(src)
+        except (OSError, KeyError, ValueError) as e:
+            raise CaseError("RUN_DIR_OR_CHECKPOINT", f"{src}: not a readable checkpoint ({e})") from None
+        path = src
+        run = src.parent.parent if src.parent.name == "checkpoints" else src.parent
+    else:
+        raise CaseError("RUN_DIR_OR_CHECKPOINT", f"not found: {src}")
+    if case_dir is not None:
+        case = load_case(case_dir)
+    else:
+        resolved = run / "case.resolved.toml"
+        if not resolved.is_file():
+            raise CaseError("--case", f"no case.resolved.toml in {run}: give the case folder with --case")
+        case = load_case(resolved)
+    sim = Simulation(case, out_dir=run, echo=False, progress=False)
+    sim.build()
+    sim.system.set_state(state["system"])
+    return sim.system, case, path
+
+
+def vertical_axis(gravity) -> tuple[int, float]:
+    """(axis, sign): the axis along gravity and +1 if 'up' (against gravity) is its positive
+    direction."""
+    g = np.asarray(gravity, float)
+    if not np.any(g):
+        raise CaseError("gravity", "no gravity: the vertical axis is undefined")
+    a = int(np.argmax(np.abs(g)))
+    return a, (1.0 if g[a] < 0 else -1.0)
+
+
+def default_grid(system, width: float, cutoff: float):
+    """The bodies' extent (centres +- radius) widened by the kernel's cutoff on every axis (so
+    that no kernel is cut), or the period on periodic axes."""
+    lo = np.min(system.pos - system.radius[:, None], axis=0) - cutoff * width
+    hi = np.max(system.pos + system.radius[:, None], axis=0) + cutoff * width
+    for a in range(3):
+        if system._plen[a] > 0:
+            lo[a], hi[a] = system._plo[a], system._plo[a] + system._plen[a]
+    return lo, hi
+
+
+def vertical_profile(fields: CoarseFields, system, up_axis: int, up: float) -> dict:
+    """Cross-section averages against height: the integral over the horizontal cells divided by
+    the bodies' horizontal extent W x T (centres +- radius; the period on periodic axes), so
+    that a grid wider than the bed loses nothing.  Returns height (up from the lowest body
+    surface), density, vertical pressure -sigma_vv (Pa, compression positive), W, T (the first
+    and second horizontal axes), the axes, the bed's bulk density rho_b (mean density over the
+    middle half of the bed) and the equivalent flat fill height H = M / (rho_b W T)."""
+    hz = [a for a in range(3) if a != up_axis]
+    ext = []
+    for a in hz:
+        if system._plen[a] > 0:
+            ext.append(float(system._plen[a]))
+        else:
+            ext.append(float(np.max(system.pos[:, a] + system.radius) - np.min(system.pos[:, a] - system.radius)))
+    W, T = ext
+    area_cell = float(np.prod([fields.spacing[a] for a in hz]))
+    dens = np.moveaxis(fields.density, up_axis, 0).reshape(fields.shape[up_axis], -1).sum(axis=1)
+    svv = np.moveaxis(fields.stress[..., up_axis, up_axis], up_axis, 0).reshape(fields.shape[up_axis], -1).sum(axis=1)
+    dens *= area_cell / (W * T)
+    pv = -svv * area_cell / (W * T)
+    z = fields.centres(up_axis)
+    base = np.min(up * system.pos[:, up_axis] - system.radius)
+    h = up * z - base
+    order = np.argsort(h)
+    h, dens, pv = h[order], dens[order], pv[order]
+    M = fields.totals["mass"]
+    bed = dens > 0.5 * dens.max()
+    H0 = float(h[bed].max()) if bed.any() else 0.0
+    mid = bed & (h > 0.25 * H0) & (h < 0.75 * H0)
+    rho_b = float(dens[mid].mean()) if mid.any() else float("nan")
+    return dict(height=h, density=dens, pressure=pv, W=W, T=T, axes=hz, rho_b=rho_b, H=M / (rho_b * W * T))
+
+
+def plot_vertical_stress(prof: dict, path, janssen_curve=None, title: str = "") -> None:
+    """PNG: the cross-section averaged vertical pressure against height, with the hydrostatic
+    line rho_b g (H - h) and Janssen's curve when given ((height, pressure, label))."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 5))
+    h = prof["height"]
+    ax.plot(prof["pressure"], 1e3 * h, "k-", lw=1.8, label="coarse-grained DEM")
+    top = h.max()
+    if math.isfinite(prof["H"]):  # no bed (fewer particles than a layer): no bulk density
+        hh = np.linspace(0.0, prof["H"], 100)
+        ax.plot(prof["rho_b"] * prof["g"] * (prof["H"] - hh), 1e3 * hh, "b:", label="hydrostatic rho_b g (H - h)")
+        top = max(top, prof["H"])
+    if janssen_curve is not None:
+        ax.plot(janssen_curve[1], 1e3 * janssen_curve[0], "r--", label=janssen_curve[2])
+    ax.set_xlabel("vertical pressure -sigma_vv (Pa), cross-section average")
+    ax.set_ylabel("height above the floor (mm)")
+    ax.set_xlim(left=0.0)
+    ax.set_ylim(0.0, 1e3 * top)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    if title:
+        ax.set_title(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def coarse_grain_run(src, out=None, *, spacing=None, width: float | None = None, cutoff: float = 3.0,
+                     edges: str = "open", lo=None, hi=None, case_dir=None, janssen_walls=None,
+                     K: float | None = None) -> dict:
+    """Coarse-grain a run at a checkpoint (:func:`load_run_state`) and write ``out`` (default:
+    RUN/coarse): ``coarse.h5`` (:meth:`CoarseFields.write_h5`), ``coarse.vtu`` (ParaView),
+    ``vertical_profile.csv`` and ``vertical_stress.png`` (:func:`vertical_profile`; Janssen's
+    curve with ``janssen_walls`` = (mu_side, mu_front) and the lateral pressure ratio ``K``).
+    Defaults: ``width`` 3 mean particle radii (the thesis's kernel), ``spacing`` = width, the
+    grid :func:`default_grid`.  Returns a summary dict (files, numbers)."""
+    from pathlib import Path
+
+    system, case, ckpt = load_run_state(src, case_dir)
+    if system.n == 0:
+        raise CaseError("RUN_DIR_OR_CHECKPOINT", f"{ckpt}: holds no particles")
+    if width is None:
+        width = 3.0 * float(system.radius.mean())
+    if spacing is None:
+        spacing = width
+    dlo, dhi = default_grid(system, width, cutoff)
+    lo = dlo if lo is None else lo
+    hi = dhi if hi is None else hi
+    if janssen_walls is not None and K is None:
+        raise CaseError("--janssen", "needs the lateral pressure ratio: --K, --phi or --bulk-friction")
+    fields = coarse_grain(system, lo, hi, spacing, width, cutoff=cutoff, edges=edges,
+                          solid_density=case.particles.density)
+    out = Path(out) if out is not None else Path(ckpt).parent.parent / "coarse"
+    out.mkdir(parents=True, exist_ok=True)
+    fields.write_h5(out / "coarse.h5")
+    fields.write_vtu(out / "coarse.vtu")
+    files = [out / "coarse.h5", out / "coarse.vtu"]
+    summary = dict(checkpoint=str(ckpt), time=fields.time, shape=fields.shape, spacing=fields.spacing.tolist(),
+                   width=width, cutoff=cutoff, edges=edges, mass=fields.totals["mass"],
+                   mass_on_grid=float(fields.density.sum() * fields.cell_volume))
+    axis, up = vertical_axis(system.gravity)
+    prof = vertical_profile(fields, system, axis, up)
+    prof["g"] = float(np.linalg.norm(system.gravity))
+    cols = [prof["height"], prof["density"], prof["pressure"]]
+    head = "height_m,density_kg_m3,vertical_pressure_Pa"
+    curve = None
+    summary.update(rho_b=prof["rho_b"], H=prof["H"], W=prof["W"], T=prof["T"])
+    if janssen_walls is not None:
+        mu_s, mu_f = (float(x) for x in janssen_walls)
+        jz = janssen(prof["height"], prof["H"], prof["rho_b"] * prof["g"], prof["W"], prof["T"], K, mu_s, mu_f)
+        hh = np.linspace(0.0, prof["H"], 100)
+        curve = (hh, janssen(hh, prof["H"], prof["rho_b"] * prof["g"], prof["W"], prof["T"], K, mu_s, mu_f),
+                 f"Janssen K = {K:.3g}, mu_side = {mu_s:g}, mu_front = {mu_f:g}")
+        cols.append(jz)
+        head += ",janssen_Pa"
+        zc = prof["W"] * prof["T"] / (2 * K * (mu_s * prof["T"] + mu_f * prof["W"]))
+        summary.update(K=K, mu_side=mu_s, mu_front=mu_f, z_c=zc)
+        floor = (prof["height"] > 0.1 * prof["H"]) & (prof["height"] < 0.2 * prof["H"])
+        if floor.any():
+            summary["pressure_low"] = float(prof["pressure"][floor].mean())
+            summary["janssen_low"] = float(jz[floor].mean())
+    np.savetxt(out / "vertical_profile.csv", np.column_stack(cols), delimiter=",", header=head, comments="")
+    files.append(out / "vertical_profile.csv")
+    plot_vertical_stress(prof, out / "vertical_stress.png", curve,
+                         title=f"{case.name}, t = {fields.time:.3g} s, width {1e3 * width:.2g} mm")
+    files.append(out / "vertical_stress.png")
+    summary["files"] = [str(f) for f in files]
+    return summary

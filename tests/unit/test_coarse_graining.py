@@ -230,3 +230,26 @@ def test_bad_input_names_the_key():
         coarse_grain(s, [0.0] * 3, [0.04] * 3, 0.002, R, edges="mirror")
     with pytest.raises(CaseError, match="lo/hi"):
         coarse_grain(s, [0.0] * 3, [0.04, 0.0, 0.04], 0.002, R)
+
+
+def test_command_on_a_run_checkpoint(tmp_path, root):
+    import h5py
+
+    from cfddem.cli import main
+    from cfddem.config import load_case
+    from cfddem.simulation import run_case
+
+    case = load_case(root / "cases" / "box_small", overrides=["checkpoint.interval=0.01"])
+    run_case(case, out_dir=tmp_path / "run", echo=False, progress=False)
+    out = tmp_path / "cg"
+    assert main(["coarse-grain", str(tmp_path / "run"), "--width", "0.002", "--spacing", "0.001",
+                 "--out", str(out), "--janssen", "0.3,0.2", "--phi", "30"]) == 0
+    with h5py.File(out / "coarse.h5", "r") as f:
+        m = f["density"][()].sum() * np.prod(f.attrs["spacing"])
+        assert abs(m / f.attrs["total_mass"] - 1) < 1e-10
+        assert f["stress"].shape[-2:] == (3, 3)
+    for name in ("coarse.vtu", "vertical_profile.csv", "vertical_stress.png"):
+        assert (out / name).stat().st_size > 0
+    # bad input: one line, exit code 2
+    assert main(["coarse-grain", str(tmp_path), "--out", str(out)]) == 2
+    assert main(["coarse-grain", str(tmp_path / "run"), "--spacing", "1,2", "--out", str(out)]) == 2
