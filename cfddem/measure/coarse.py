@@ -92,83 +92,66 @@ def _axis_weights(x, lo, h, n, wrap, inv2w2, cut, w, idx):
     return cnt
 
 
-@kernel
-def deposit_points(npt, P, m, v, vol, lo, h, nc, wrap, inv2w2, cut, wx, ix, wy, iy, wz, iz,
-                   rho, mom, mvv, phi):
-    """Add each point's mass, momentum, m v (x) v and solid volume, times the kernel, to the
-    cell fields rho (nx, ny, nz), mom (.., 3), mvv (.., 3, 3), phi (..)."""
-    for p in range(npt):
-        lx = _axis_weights(P[p, 0], lo[0], h[0], nc[0], wrap[0], inv2w2, cut, wx, ix)
-        ly = _axis_weights(P[p, 1], lo[1], h[1], nc[1], wrap[1], inv2w2, cut, wy, iy)
-        lz = _axis_weights(P[p, 2], lo[2], h[2], nc[2], wrap[2], inv2w2, cut, wz, iz)
-        mp = m[p]
-        vp0 = v[p, 0]
-        vp1 = v[p, 1]
-        vp2 = v[p, 2]
-        for a in range(lx):
-            i = ix[a]
-            if i < 0:
+@kernel(inline="always")
+def _scatter(x, y, z, scale, vals, lo, h, nc, wrap, inv2w2, cut, wx, ix, wy, iy, wz, iz, out):
+    """out[i, j, k, :] += scale * W(cell - (x, y, z)) * vals for the cells of the kernel."""
+    lx = _axis_weights(x, lo[0], h[0], nc[0], wrap[0], inv2w2, cut, wx, ix)
+    ly = _axis_weights(y, lo[1], h[1], nc[1], wrap[1], inv2w2, cut, wy, iy)
+    lz = _axis_weights(z, lo[2], h[2], nc[2], wrap[2], inv2w2, cut, wz, iz)
+    nv = len(vals)
+    for a in range(lx):
+        i = ix[a]
+        if i < 0:
+            continue
+        for b in range(ly):
+            j = iy[b]
+            if j < 0:
                 continue
-            for b in range(ly):
-                j = iy[b]
-                if j < 0:
+            wab = scale * wx[a] * wy[b]
+            for c in range(lz):
+                k = iz[c]
+                if k < 0:
                     continue
-                wab = wx[a] * wy[b]
-                for c in range(lz):
-                    k = iz[c]
-                    if k < 0:
-                        continue
-                    W = wab * wz[c]
-                    mw = mp * W
-                    rho[i, j, k] += mw
-                    phi[i, j, k] += vol[p] * W
-                    mom[i, j, k, 0] += mw * vp0
-                    mom[i, j, k, 1] += mw * vp1
-                    mom[i, j, k, 2] += mw * vp2
-                    mvv[i, j, k, 0, 0] += mw * vp0 * vp0
-                    mvv[i, j, k, 0, 1] += mw * vp0 * vp1
-                    mvv[i, j, k, 0, 2] += mw * vp0 * vp2
-                    mvv[i, j, k, 1, 1] += mw * vp1 * vp1
-                    mvv[i, j, k, 1, 2] += mw * vp1 * vp2
-                    mvv[i, j, k, 2, 2] += mw * vp2 * vp2
+                W = wab * wz[c]
+                for r in range(nv):
+                    out[i, j, k, r] += W * vals[r]
+
+
+@kernel
+def deposit_points(npt, P, m, v, vol, lo, h, nc, wrap, inv2w2, cut, wx, ix, wy, iy, wz, iz, vals, out):
+    """Add each point's mass, solid volume, momentum (3) and m v (x) v (xx, xy, xz, yy, yz, zz),
+    times the kernel, to out (nx, ny, nz, 11); ``vals`` (11,) scratch."""
+    for p in range(npt):
+        mp = m[p]
+        vals[0] = mp
+        vals[1] = vol[p]
+        r = 5
+        for a in range(3):
+            vals[2 + a] = mp * v[p, a]
+            for b in range(a, 3):
+                vals[r] = mp * v[p, a] * v[p, b]
+                r += 1
+        _scatter(P[p, 0], P[p, 1], P[p, 2], 1.0, vals, lo, h, nc, wrap, inv2w2, cut, wx, ix, wy, iy, wz, iz, out)
     return 0
 
 
 @kernel
-def deposit_branches(ns, X, B, F, width, lo, h, nc, wrap, inv2w2, cut, wx, ix, wy, iy, wz, iz, sig):
+def deposit_branches(ns, X, B, F, width, lo, h, nc, wrap, inv2w2, cut, wx, ix, wy, iy, wz, iz, vals, out):
     """Add F[s] (x) B[s] times the line integral of the kernel along the segment X[s] ->
-    X[s] + B[s] to the cell field sig (nx, ny, nz, 3, 3).  Composite two-point Gauss-Legendre
-    rule with ceil(2 |B| / width) sub-segments."""
+    X[s] + B[s] to out (nx, ny, nz, 9) (row-major 3 x 3).  Composite two-point Gauss-Legendre
+    rule with ceil(2 |B| / width) sub-segments; ``vals`` (9,) scratch."""
     for s in range(ns):
         bl = math.sqrt(B[s, 0] * B[s, 0] + B[s, 1] * B[s, 1] + B[s, 2] * B[s, 2])
         nsub = max(1, int(math.ceil(2.0 * bl / width)))
-        wq = 0.5 / nsub
+        for r in range(3):
+            for e in range(3):
+                vals[3 * r + e] = F[s, r] * B[s, e]
         for q in range(2 * nsub):
             # nodes 1/2 -+ 1/(2 sqrt 3) of each sub-segment
             t = ((q // 2) + 0.5 + (0.28867513459481287 if q % 2 else -0.28867513459481287)) / nsub
-            lx = _axis_weights(X[s, 0] + t * B[s, 0], lo[0], h[0], nc[0], wrap[0], inv2w2, cut, wx, ix)
-            ly = _axis_weights(X[s, 1] + t * B[s, 1], lo[1], h[1], nc[1], wrap[1], inv2w2, cut, wy, iy)
-            lz = _axis_weights(X[s, 2] + t * B[s, 2], lo[2], h[2], nc[2], wrap[2], inv2w2, cut, wz, iz)
-            for a in range(lx):
-                i = ix[a]
-                if i < 0:
-                    continue
-                for b in range(ly):
-                    j = iy[b]
-                    if j < 0:
-                        continue
-                    wab = wq * wx[a] * wy[b]
-                    for c in range(lz):
-                        k = iz[c]
-                        if k < 0:
-                            continue
-                        W = wab * wz[c]
-                        for r in range(3):
-                            fr = F[s, r] * W
-                            for e in range(3):
-                                sig[i, j, k, r, e] += fr * B[s, e]
+            _scatter(X[s, 0] + t * B[s, 0], X[s, 1] + t * B[s, 1], X[s, 2] + t * B[s, 2], 0.5 / nsub, vals,
+                     lo, h, nc, wrap, inv2w2, cut, wx, ix, wy, iy, wz, iz, out)
     return 0
-
 
 
 @kernel
@@ -455,14 +438,20 @@ def coarse_grain(system, lo, hi, spacing, width: float, *, cutoff: float = 3.0, 
     L = int(math.floor(2.0 * cut / h.min())) + 2
     scratch = [np.empty(L) if k % 2 == 0 else np.empty(L, np.int64) for k in range(6)]
     inv2w2 = 1.0 / (2.0 * width * width)
-    rho = np.zeros(shape)
-    phi = np.zeros(shape)
-    mom = np.zeros(shape + (3,))
-    mvv = np.zeros(shape + (3, 3))
-    sig = np.zeros(shape + (3, 3))
+    pts = np.zeros(shape + (11,))
     deposit_points(len(P), np.ascontiguousarray(P), np.ascontiguousarray(bd["m"]), np.ascontiguousarray(bd["v"]),
-                   np.ascontiguousarray(bd["vol"]), lo, h, nc, wrap, inv2w2, cut, *scratch, rho, mom, mvv, phi)
-    deposit_branches(len(X), X, br["B"], br["F"], float(width), lo, h, nc, wrap, inv2w2, cut, *scratch, sig)
+                   np.ascontiguousarray(bd["vol"]), lo, h, nc, wrap, inv2w2, cut, *scratch, np.zeros(11), pts)
+    sig = np.zeros(shape + (9,))
+    deposit_branches(len(X), X, br["B"], br["F"], float(width), lo, h, nc, wrap, inv2w2, cut, *scratch,
+                     np.zeros(9), sig)
+    sig = sig.reshape(shape + (3, 3))
+    rho, phi, mom = (np.ascontiguousarray(pts[..., k]) for k in (0, 1, slice(2, 5)))
+    mvv = np.zeros(shape + (3, 3))
+    r = 5
+    for a in range(3):  # m v v was filled on and above the diagonal
+        for b in range(a, 3):
+            mvv[..., a, b] = mvv[..., b, a] = pts[..., r]
+            r += 1
     cov = np.ones(shape)
     for a in range(3):
         c1 = np.empty(shape[a])
@@ -474,9 +463,6 @@ def coarse_grain(system, lo, hi, spacing, width: float, *, cutoff: float = 3.0, 
         mom = mom * inv[..., None]
         mvv = mvv * inv[..., None, None]
         sig = sig * inv[..., None, None]
-    for a in range(3):  # m v v was filled on and above the diagonal
-        for b in range(a):
-            mvv[..., a, b] = mvv[..., b, a]
     safe = np.where(rho > 0, rho, 1.0)
     vel = np.where((rho > 0)[..., None], mom / safe[..., None], 0.0)
     kin = -(mvv - rho[..., None, None] * vel[..., :, None] * vel[..., None, :])
