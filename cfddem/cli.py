@@ -7,6 +7,7 @@
     cfddem stability CASE --vary KEY=V1,V2,... [--vary ...] [--out DIR]   (or --map drag|courant|cells)
     cfddem accuracy SWEEP_DIR [--reference NAME]
     cfddem beverloo SILO_CASE --widths B1,B2,... [--set K=V]... [--out DIR] [--workers N]
+    cfddem coarse-grain RUN_DIR_OR_CHECKPOINT [--spacing H] [--width W] [--out DIR] [--janssen MU_SIDE,MU_FRONT --phi DEG]
     cfddem report OUT
 
 Exit codes: 0 success, 2 bad input (one line on stderr), 3 a run that failed (blow-up or solver
@@ -86,6 +87,23 @@ def _parser() -> argparse.ArgumentParser:
     from .calibrate import add_calibrate_parser
 
     add_calibrate_parser(sub)
+
+    cg = sub.add_parser("coarse-grain", help="density, velocity and stress fields of a run's checkpoint on a grid")
+    cg.add_argument("src", metavar="RUN_DIR_OR_CHECKPOINT", help="a run folder (its newest checkpoint) or a checkpoint file")
+    cg.add_argument("--spacing", help="cell size in m: one value or x,y,z (default: the width)")
+    cg.add_argument("--width", type=float, help="Gaussian kernel's standard deviation in m (default: 3 mean radii)")
+    cg.add_argument("--cutoff", type=float, default=3.0, help="kernel cutoff in widths (default 3)")
+    cg.add_argument("--edges", choices=("open", "correct"), default="open", help="treatment of the grid's edges")
+    cg.add_argument("--lo", help="grid's lower corner x,y,z in m (default: the particles' extent + the cutoff)")
+    cg.add_argument("--hi", help="grid's upper corner x,y,z in m")
+    cg.add_argument("--case", dest="case_dir", help="the case folder, when the run's case.resolved.toml cannot be used")
+    cg.add_argument("--out", help="output folder (default: RUN/coarse)")
+    cg.add_argument("--janssen", metavar="MU_SIDE,MU_FRONT",
+                    help="add Janssen's curve: friction of the walls across the first / second horizontal axis")
+    k = cg.add_mutually_exclusive_group()
+    k.add_argument("--K", type=float, help="Janssen's lateral pressure ratio")
+    k.add_argument("--phi", type=float, help="bulk friction angle in degrees: K = (1 - sin phi) / (1 + sin phi)")
+    k.add_argument("--bulk-friction", type=float, help="bulk friction tan(phi) (e.g. from cfddem calibrate)")
 
     rep = sub.add_parser("report", help="(re)write the PNG plots of a finished run")
     rep.add_argument("out", help="a run folder (holding results.h5)")
@@ -201,6 +219,42 @@ def _dispatch(args) -> int:
         from .calibrate import run_calibrate_from_args
 
         return run_calibrate_from_args(args)
+    if args.command == "coarse-grain":
+        import math
+
+        from .measure.coarse import coarse_grain_run, lateral_pressure_ratio
+
+        def floats(key, text, n):
+            try:
+                v = [float(x) for x in text.split(",")]
+            except ValueError:
+                raise CaseError(key, f"expected {n} comma-separated numbers, got {text!r}") from None
+            if len(v) not in ({1, 3} if n == "1 or 3" else {n}):
+                raise CaseError(key, f"expected {n} comma-separated numbers, got {text!r}")
+            return v
+
+        K = args.K
+        if args.phi is not None:
+            K = lateral_pressure_ratio(math.tan(math.radians(args.phi)))
+        elif args.bulk_friction is not None:
+            K = lateral_pressure_ratio(args.bulk_friction)
+        res = coarse_grain_run(args.src, args.out, spacing=floats("--spacing", args.spacing, "1 or 3") if args.spacing else None,
+                               width=args.width, cutoff=args.cutoff, edges=args.edges,
+                               lo=floats("--lo", args.lo, 3) if args.lo else None,
+                               hi=floats("--hi", args.hi, 3) if args.hi else None, case_dir=args.case_dir,
+                               janssen_walls=floats("--janssen", args.janssen, 2) if args.janssen else None, K=K)
+        print(f"{res['checkpoint']}: t = {res['time']:.4g} s; grid {res['shape']} of "
+              f"{'x'.join(f'{1e3 * h:.3g}' for h in res['spacing'])} mm, width {1e3 * res['width']:.3g} mm; "
+              f"mass on the grid {res['mass_on_grid']:.6g} kg of {res['mass']:.6g} kg")
+        print(f"bulk density {res['rho_b']:.4g} kg/m3, equivalent fill height {1e3 * res['H']:.4g} mm, "
+              f"section {1e3 * res['W']:.4g} x {1e3 * res['T']:.4g} mm")
+        if "z_c" in res:
+            print(f"Janssen: K = {res['K']:.3g}, z_c = {1e3 * res['z_c']:.4g} mm"
+                  + (f"; at 10-20 % of the height: DEM {res['pressure_low']:.4g} Pa, Janssen {res['janssen_low']:.4g} Pa"
+                     if "pressure_low" in res else ""))
+        for f in res["files"]:
+            print(f)
+        return 0
     if args.command == "report":
         from pathlib import Path
 
