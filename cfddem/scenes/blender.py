@@ -364,14 +364,15 @@ class BlenderScene(SiloScene):
         if np.any(sign > 0):
             self.last_out_time = t
         re = wrap_up
-        m_re = float(u["m"][re].sum())
-        c_re = float(u["m"][re & (u["label"] == 1)].sum()) / m_re if m_re > 0 else math.nan
         c_in = input_concentration(self.b, t - self.gate_open_time)
+        tracer = u["label"][re] == 1
         if self.b["input"] != "batch" and re.any():
             rng = np.random.default_rng([int(self.case.particles.seed), 0xB1E, self.k_sample])
             tracer = rng.random(int(re.sum())) < c_in
             self._relabel(u["key"][re][tracer], 1)
             self._relabel(u["key"][re][~tracer], 0)
+        m_re = float(u["m"][re].sum())
+        c_re = float(u["m"][re][tracer].sum()) / m_re if m_re > 0 else math.nan
         g = self.g
         ch = (y1 < 0.0) & (y1 >= self.geo.feeder[1]) & (np.abs(u["x"] - g.xc) < 0.5 * g.b)
         r = self.rec

@@ -120,7 +120,7 @@ def test_clump_centre_of_mass_wraps_and_the_zone_keeps_it(one_numba_thread):
 
     from cfddem.particles.system import ParticleSystem
 
-    law = contact_law({"k_n": 200.0, "e_n": 0.5, "mu": 0.3}, "linear")
+    law = contact_law({"k_n": 200.0, "e_n": 0.5, "e_t": 0.5, "mu": 0.3, "mu_r": 0.0}, "linear")
     sys_ = ParticleSystem(pp=law, walls=[], dt=1e-4, gravity=(0.0, -9.81, 0.0),
                           periodic=(None, (0.0, 0.05), None))
     sys_.add_clumps(pellet(2, 0.004, 950.0), np.array([[0.0, 0.052, 0.0]]))  # given above the box: wrapped
