@@ -28,7 +28,7 @@ Integration (per body, one step dt, h = dt/2):
                                          pi = R^T L, exact rotations about the principal axes
                                          1 (h/2), 2 (h/2), 3 (dt), 2 (h/2), 1 (h/2): symplectic,
                                          time reversible, q stays unit to round-off
-    r_com <- r_com + dt v
+    r_com <- r_com + dt v                (wrapped into periodic boxes, as free spheres)
     members: r_m = r_com + R(q) b_m,  v_m = v + w x s_m,  w_m = w = R diag(1/I) R^T L
     ... forces at t + dt ...
     v <- K_h(v; F_B/M),  L <- K_h(L; T_B),  members' v_m, w_m
@@ -233,9 +233,11 @@ def clump_open(nb, start, members, com, vel, L, quat, mass, inert, bforce, btorq
         L[b, 0] = r00 * p0 + r01 * p1 + r02 * p2
         L[b, 1] = r10 * p0 + r11 * p1 + r12 * p2
         L[b, 2] = r20 * p0 + r21 * p1 + r22 * p2
-        com[b, 0] += dt * vel[b, 0]
-        com[b, 1] += dt * vel[b, 1]
-        com[b, 2] += dt * vel[b, 2]
+        # the centre of mass is wrapped into periodic boxes like a free sphere's centre (velocity
+        # zones and measurements test it against boxes)
+        com[b, 0] = _wrap(com[b, 0] + dt * vel[b, 0], plo[0], plen[0])
+        com[b, 1] = _wrap(com[b, 1] + dt * vel[b, 1], plo[1], plen[1])
+        com[b, 2] = _wrap(com[b, 2] + dt * vel[b, 2], plo[2], plen[2])
         d2 = _write_members(b, start, members, com, vel, L, quat, inert, pos, pvel, pomg, boff,
                             plen, plo, ref, True)
         m2 = max(m2, d2)

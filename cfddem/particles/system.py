@@ -983,6 +983,10 @@ class ParticleSystem:
             raise CaseError("com", "non-finite clump position, velocity or spin")
         if self.clumps is None:
             self.clumps = cl.ClumpSet()
+        com = com.copy()
+        for a in range(3):  # centres of mass wrapped into periodic boxes, as the members
+            if self._periodic[a]:
+                com[:, a] = self._plo[a] + np.mod(com[:, a] - self._plo[a], self._plen[a])
         k = len(shape.radii)
         R = np.array([cl.matrix_from_quat(qq) for qq in q])  # (m, 3, 3)
         L = np.einsum("bij,bj->bi", R, np.einsum("j,bj->bj", shape.inertia,

@@ -49,6 +49,7 @@ SCENES: dict[str, str] = {
     "chute": "cfddem.scenes.chute:ChuteScene",
     "box": "cfddem.scenes.box:BoxScene",
     "silo": "cfddem.scenes.silo:SiloScene",
+    "silo_blender": "cfddem.scenes.blender:BlenderScene",
     "shear_cell": "cfddem.scenes.shear:ShearCellScene",
     "drum": "cfddem.scenes.drum:DrumScene",
     "none": "cfddem.scenes:Scene",

@@ -283,15 +283,16 @@ def check_silo_case(r: dict) -> None:
                                            f"({g.lattice_top:.4g} m): raise it or set 0 (automatic)")
 
 
-def silo_walls(case, container: bool | None = None):
+def silo_walls(case, container: bool | None = None, silo: dict | None = None):
     """The silo's :class:`~cfddem.scenes.common.WallSpec` list (params: the per-group overrides
     only; :func:`cfddem.scenes.common.wall_specs` fills in ``contact.particle_wall``).
     ``container``: include the container (every wall but the gate); default: unless
     ``silo.walls = "mesh"`` (then the case's mesh walls are the container and only the gate is
-    the scene's)."""
+    the scene's).  ``silo``: the ``[silo]`` values to build from (default the case's; a scene
+    built on the silo passes its derived ones)."""
     from .common import WallSpec
 
-    s = case.resolved["silo"]
+    s = case.resolved["silo"] if silo is None else silo
     if container is None:
         container = s["walls"] != "mesh"
     p = case.particles
@@ -740,12 +741,16 @@ class SiloScene(Scene):
 
     def fill_measure(self, pos, mass) -> None:
         """Fill height and bulk density of the current packing (module doc for the box)."""
+        self.fill.update(self.packing(pos, mass))
+
+    def packing(self, pos, mass) -> dict:
+        """Fill height and bulk density of a packing (the box of the module doc), as a dict."""
         d, g = self.g.d, self.g
         h = surface_height(pos, 0.0, g.W, 2 * d)
         lo = np.array([3 * d, g.y_h + 3 * d, 0.0])
         hi = np.array([g.W - 3 * d, h - 3 * d, g.L])
         rho, k = bulk_density(pos, mass, lo, hi) if hi[1] > lo[1] else (math.nan, 0)
-        self.fill.update(bulk_density=rho, fill_height=h, n_particles=len(pos), n_in_box=k, box_lo=lo, box_hi=hi)
+        return dict(bulk_density=rho, fill_height=h, n_particles=len(pos), n_in_box=k, box_lo=lo, box_hi=hi)
 
     def series(self) -> dict:
         c = self.sim.counters
