@@ -220,8 +220,6 @@ def _dispatch(args) -> int:
 
         return run_calibrate_from_args(args)
     if args.command == "coarse-grain":
-        import math
-
         from .measure.coarse import coarse_grain_run, lateral_pressure_ratio
 
         def floats(key, text, n):

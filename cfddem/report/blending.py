@@ -19,7 +19,8 @@ folder:
 
 It reads the contract of the blending issue: ``/measurements/blending/{time, concentration_out,
 vrr}`` and, where they exist, ``/measurements/blending/{n_recirculations, t_mean,
-content_fraction, vrr_recirculations, vrr_by_recirculation}``, ``/measurements/rtd/{theta, E,
+tracer_fraction_inventory (the mean the outflow tends to), vrr_recirculations,
+vrr_by_recirculation}``, ``/measurements/rtd/{theta, E,
 F}``, ``/measurements/flow_pattern`` and the silo's velocity field and channel
 (``/measurements/silo/field``, ``/measurements/silo/channel``).  A variant without blending
 measurements is listed with its status and left out of the plots.
@@ -65,6 +66,7 @@ def read_blend_run(run_dir) -> dict | None:
     r: dict = {"name": run_dir.name, "dir": str(run_dir), "has_blending": "concentration_out" in b}
     r["time"] = np.asarray(b.get("time", []), float)
     r["c_out"] = np.asarray(b.get("concentration_out", []), float)
+    r["mass_by_label"] = np.asarray(b.get("mass_by_label", np.zeros((0, 2))), float)
     r["vrr"] = _f(b.get("vrr", math.nan))
     r["t_mean"] = _f(b.get("t_mean", math.nan))
     nr = b.get("n_recirculations")
@@ -74,7 +76,7 @@ def read_blend_run(run_dir) -> dict | None:
         r["n_r"] = r["time"] / r["t_mean"]
     else:
         r["n_r"] = None
-    r["content_fraction"] = _f(b.get("content_fraction", math.nan))
+    r["content_fraction"] = _f(b.get("content_fraction", b.get("tracer_fraction_inventory", math.nan)))
     r["vrr_nr"] = np.asarray(b.get("vrr_recirculations", []), float)
     r["vrr_by_nr"] = np.asarray(b.get("vrr_by_recirculation", []), float)
     rtd = m.get("rtd", {})
@@ -106,6 +108,25 @@ def _xaxis(r: dict):
         (r["time"], "time (s)")
 
 
+def _blocks(r: dict, x):
+    """Tracer mass fraction of the outflow in blocks of about t_mean / 20 (from the mass per
+    label), at the blocks' mean x; (None, None) without the per-label masses or t_mean."""
+    M = r["mass_by_label"]
+    t = r["time"]
+    if M.ndim != 2 or M.shape[0] != len(t) or M.shape[1] < 2 or len(t) < 4 or not (r["t_mean"] > 0):
+        return None, None
+    dt = float(np.median(np.diff(t)))
+    k = max(1, int(round(0.05 * r["t_mean"] / dt)))
+    nb = len(t) // k
+    if nb < 2:
+        return None, None
+    Mb = M[: nb * k].reshape(nb, k, -1).sum(axis=1)
+    tot = Mb.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cb = np.where(tot > 0, Mb[:, 1] / np.where(tot > 0, tot, 1.0), np.nan)
+    return np.asarray(x[: nb * k], float).reshape(nb, k).mean(axis=1), cb
+
+
 def _plots(runs: list[dict], out: Path) -> list[Path]:
     import matplotlib
 
@@ -121,7 +142,12 @@ def _plots(runs: list[dict], out: Path) -> list[Path]:
         xl = ""
         for r in blend:
             x, xl = _xaxis(r)
-            ax.plot(x, r["c_out"], "-", lw=1.2, color=col[r["name"]], label=r["name"])
+            xb, cb = _blocks(r, x)
+            if xb is None:
+                ax.plot(x, r["c_out"], "-", lw=1.2, color=col[r["name"]], label=r["name"])
+            else:  # the sampling intervals faint, blocks of a twentieth of t_mean as the line
+                ax.plot(x, r["c_out"], ".", ms=2, alpha=0.25, color=col[r["name"]])
+                ax.plot(xb, cb, "-", lw=1.5, color=col[r["name"]], label=r["name"])
             if math.isfinite(r["content_fraction"]):
                 ax.axhline(r["content_fraction"], ls="--", lw=1, color=col[r["name"]])
         ax.set_xlabel(xl)
@@ -129,7 +155,8 @@ def _plots(runs: list[dict], out: Path) -> list[Path]:
         ax.set_ylim(-0.02, 1.02)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="best")
-        ax.set_title("outflow concentration (dashed: the silo content's mean)", fontsize=10)
+        ax.set_title("outflow concentration: dots per record interval, lines per 1/20 of t_mean;\n"
+                     "dashed: the silo content's mean", fontsize=9)
         fig.tight_layout()
         files.append(out / "blending_concentration.png")
         fig.savefig(files[-1], dpi=120)

@@ -453,7 +453,82 @@ class BlenderScene(SiloScene):
         }
         arrays["blending"] = rec
         arrays["mass_flow_rate"] = rec["mass_flow_rate"]
+        arrays.update(self.analysis(rec, arrays["silo"]))
         return group, arrays, attrs
+
+    def analysis(self, rec: dict, silo: dict) -> dict:
+        """The blending measures of :mod:`cfddem.measure.blending` on the records: VRR over the
+        analysed window (from the gate opening to now) and per recirculation, the flow pattern
+        and the RTD.  VRR: var(c_in)/var(c_out) in continuous mode, f (1 - f)/var(c_out) for a
+        batch of tracer fraction f.  RTD: from the outflow's step response with ``input =
+        "step"`` (the particle-resolved RTD), and from virtual tracers released over the filled
+        area of the time-averaged velocity field (``/measurements/rtd_virtual``; the
+        ``/measurements/rtd`` of the other modes).  Quantities that the records cannot give yet
+        (no outflow, no recirculation, no field) are left out, never filled in."""
+        from ..measure import blending as bl
+
+        b, out = self.b, {}
+        t, c_out = rec["time"], rec["concentration_out"]
+        t_mean = rec["t_mean"]
+        count = rec["count_by_label"].sum(axis=1) if len(t) else np.zeros(0)
+        batch = b["input"] == "batch"
+        f = rec["tracer_fraction"]
+        if batch and not 0.0 < f < 1.0:
+            c_in = None
+        else:
+            c_in = bl.batch_input_variance(f) if batch else rec["concentration_in"]
+        vrr = bl.variance_reduction_ratio(c_in, c_out) if c_in is not None and len(t) >= 2 else math.nan
+        rec["vrr"] = vrr
+        rec.setdefault("@attrs", {})["vrr"] = (
+            "var(c_in) / var(c_out) over the records from the gate opening to the end: "
+            + ("c_in a batch of tracer fraction f, var f (1 - f)" if batch else "c_in the re-entry input c_in(t)"))
+        if math.isfinite(t_mean) and t_mean > 0 and c_in is not None and len(t) >= 2:
+            by = bl.vrr_by_recirculation(t, c_out, t_mean, c_in=None if batch else c_in,
+                                         batch_fraction=f if batch else None, t_start=self.gate_open_time,
+                                         count=count)
+            if len(by["n_r"]):
+                rec["vrr_recirculations"] = by["n_r"]
+                rec["vrr_by_recirculation"] = by["vrr"]
+                rec["vrr_sampling_limit"] = np.where(by["var_sampling"] > 0,
+                                                     by["var_in"] / np.where(by["var_sampling"] > 0,
+                                                                             by["var_sampling"], 1.0), np.nan)
+        fld = silo["field"]
+        have_field = int(np.asarray(fld["n_samples"])) > 0 and np.isfinite(np.asarray(fld["vy"], float)).any()
+        fill_h = self.fill["fill_height"]
+        if have_field:
+            x, y, vx, vy = (np.asarray(fld[k], float) for k in ("x", "y", "vx", "vy"))
+            try:
+                fp = bl.classify_flow_pattern(x, y, vy, fill_height=fill_h if math.isfinite(fill_h) else None)
+                out["flow_pattern"] = fp["pattern"]
+                out["flow_pattern_details"] = {k: fp[k] for k in ("h_t", "h_t_over_H", "fill_height",
+                                                                  "stagnant_fraction", "width_fraction")}
+            except ValueError as exc:
+                self.sim.log.info("blender: no flow-pattern class yet (%s)", exc)
+            if math.isfinite(t_mean) and t_mean > 0:
+                try:
+                    start = bl.release_area(x, y, vx, vy, 2000, y_max=fill_h if math.isfinite(fill_h) else None)
+                    start = start[start[:, 1] > 0.0]
+                    v = bl.virtual_tracer_rtd(x, y, vx, vy, start, 0.0, t_mean=t_mean)
+                    out["rtd_virtual"] = {k: v[k] for k in ("theta", "E", "F", "mean", "variance", "peak", "theta_s",
+                                                            "n_released", "n_arrived", "n_stuck", "n_late")}
+                    out["rtd_virtual"]["@attrs"] = {
+                        "method": "virtual tracers released over the filled area of the time-averaged velocity "
+                                  "field (flux-weighted), advected to the outlet plane; theta = t / t_mean"}
+                except ValueError as exc:
+                    self.sim.log.info("blender: no virtual-tracer RTD (%s)", exc)
+        if b["input"] == "step" and math.isfinite(t_mean) and t_mean > 0:
+            t_inj = self.gate_open_time + b["input_step_time"]
+            if np.isfinite(c_out[t > t_inj]).sum() >= 3:
+                st = bl.rtd_from_step(t, c_out, t_mean=t_mean, t_inject=t_inj)
+                out["rtd"] = {k: st[k] for k in ("theta", "E", "F", "mean", "variance", "peak", "theta_s")}
+                out["rtd"]["source"] = "step response of the outflow (particle-resolved)"
+        elif "rtd_virtual" in out:
+            out["rtd"] = {k: out["rtd_virtual"][k] for k in ("theta", "E", "F", "mean", "variance", "peak",
+                                                            "theta_s")}
+            out["rtd"]["source"] = "virtual tracers in the time-averaged velocity field"
+        if "rtd" in out:
+            out["rtd"]["first_appearance"] = out["rtd"]["theta_s"]
+        return out
 
     def get_state(self) -> dict:
         st = super().get_state()
