@@ -66,7 +66,8 @@ def _parser() -> argparse.ArgumentParser:
 
     blr = sub.add_parser("blending-report", help="one report (concentration, VRR, RTD, velocity maps, cost) of a "
                                                  "blending sweep folder")
-    blr.add_argument("sweep_dir", help="a folder written by cfddem sweep over silo-blender variants")
+    blr.add_argument("sweep_dir", nargs="+", help="one or more folders written by cfddem sweep over silo-blender "
+                                                  "variants (e.g. one per flow pattern)")
     blr.add_argument("--out", help="report folder (default: SWEEP_DIR/blending_report)")
 
     try:

@@ -237,40 +237,53 @@ def _fmt(v, spec=".3g") -> str:
     return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, spec)
 
 
-def blending_report(sweep_dir, out=None) -> dict:
-    """Read every variant of a sweep folder (its ``summary.csv``) and write the report; returns
-    ``{"rows": [...], "files": [...]}``."""
+def blending_report(sweep_dirs, out=None) -> dict:
+    """Read every variant of one or more sweep folders (their ``summary.csv``; e.g. one sweep per
+    flow pattern) and write the report; returns ``{"rows": [...], "files": [...]}``.  With
+    several folders a variant is named ``FOLDER/VARIANT``."""
     from .speed_accuracy import _read_rows
 
-    sweep_dir = Path(sweep_dir)
+    dirs = [Path(d) for d in ([sweep_dirs] if isinstance(sweep_dirs, (str, Path)) else sweep_dirs)]
+    if not dirs:
+        raise CaseError("SWEEP_DIR", "give at least one sweep folder")
+    sweep_dir = dirs[0]
     out = Path(out) if out else sweep_dir / "blending_report"
-    rows = _read_rows(sweep_dir)
     runs, table = [], []
-    for row in rows:
-        r = read_blend_run(sweep_dir / row["name"])
-        entry = {"name": row["name"], "status": row.get("status", "")}
-        if r is not None:
-            runs.append(r)
-            n_r_end = float(r["n_r"][-1]) if r["n_r"] is not None and len(r["n_r"]) else math.nan
-            entry.update(flow_pattern=r["flow_pattern"], vrr=r["vrr"], t_mean_s=r["t_mean"],
-                         recirculations=n_r_end, rtd_first_theta=r["rtd_first"], rtd_peak_theta=r["rtd_peak"],
-                         n_particles=r["n_particles"], has_blending=r["has_blending"], **_cost_row(r))
-        table.append(entry)
+    for d in dirs:
+        for row in _read_rows(d):
+            r = read_blend_run(d / row["name"])
+            name = row["name"] if len(dirs) == 1 else f"{d.name}/{row['name']}"
+            entry = {"name": name, "status": row.get("status", "")}
+            if r is not None:
+                r["name"] = name
+                runs.append(r)
+                n_r_end = float(r["n_r"][-1]) if r["n_r"] is not None and len(r["n_r"]) else math.nan
+                entry.update(flow_pattern=r["flow_pattern"], vrr=r["vrr"], t_mean_s=r["t_mean"],
+                             recirculations=n_r_end, rtd_first_theta=r["rtd_first"], rtd_peak_theta=r["rtd_peak"],
+                             n_particles=r["n_particles"], has_blending=r["has_blending"], **_cost_row(r))
+                for k, v in zip(r["vrr_nr"], r["vrr_by_nr"]):
+                    entry[f"vrr_after_{int(k)}"] = float(v)
+            table.append(entry)
     if not runs:
-        raise CaseError("SWEEP_DIR", f"{sweep_dir}: no variant with a results.h5")
+        raise CaseError("SWEEP_DIR", f"{', '.join(map(str, dirs))}: no variant with a results.h5")
     out.mkdir(parents=True, exist_ok=True)
     files = _plots(runs, out)
-    lines = ["# Blending study", "", f"Sweep folder: `{sweep_dir}`", "",
-             "| variant | status | flow pattern | VRR | t_mean (s) | N_r reached | RTD first (theta) | "
+    nmax = max([int(k.rsplit("_", 1)[1]) for e in table for k in e if k.startswith("vrr_after_")], default=0)
+    lines = ["# Blending study", "", "Sweep folder(s): " + ", ".join(f"`{d}`" for d in dirs), "",
+             "| variant | status | flow pattern | VRR | " + "".join(f"VRR after {k} | " for k in range(1, nmax + 1))
+             + "t_mean (s) | N_r reached | RTD first (theta) | "
              "RTD peak (theta) | particles | simulated (s) | wall (s) | h per simulated s |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|" + "---|" * nmax + "---|---|---|---|---|---|---|---|"]
     for e in table:
         lines.append("| " + " | ".join([
-            e["name"], e["status"], e.get("flow_pattern") or "-", _fmt(e.get("vrr")), _fmt(e.get("t_mean_s")),
+            e["name"], e["status"], e.get("flow_pattern") or "-", _fmt(e.get("vrr")),
+            *[_fmt(e.get(f"vrr_after_{k}")) for k in range(1, nmax + 1)], _fmt(e.get("t_mean_s")),
             _fmt(e.get("recirculations"), ".2f"), _fmt(e.get("rtd_first_theta")), _fmt(e.get("rtd_peak_theta")),
             _fmt(e.get("n_particles"), ".0f"), _fmt(e.get("simulated_time_s")), _fmt(e.get("wall_time_s"), ".0f"),
             _fmt(e.get("hours_per_simulated_s"))]) + " |")
-    lines += ["", *[f"![{f.stem}]({f.name})" for f in files], ""]
+    lines += ["", "VRR: over the whole record; VRR after k: in the k-th window of one mean residence time "
+              "(a row's windows are limited by counting noise where the scene's vrr_sampling_limit is near).",
+              "", *[f"![{f.stem}]({f.name})" for f in files], ""]
     (out / "blending_report.md").write_text("\n".join(lines))
     (out / "blending_summary.json").write_text(json.dumps(
         [{k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in e.items()} for e in table],

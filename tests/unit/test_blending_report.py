@@ -50,7 +50,7 @@ def test_report_reads_each_variant_and_writes_plots_and_the_cost(tmp_path):
     assert {"blending_report.md", "blending_concentration.png", "blending_vrr.png", "blending_rtd.png",
             "blending_fields.png"} <= names
     md = (sw / "blending_report" / "blending_report.md").read_text()
-    assert "| internal | done | internal | 7.5 |" in md
+    assert "| internal | done | internal | 7.5 | 1.36 | 3.41 | 7.5 | 0.4 |" in md
     summ = json.loads((sw / "blending_report" / "blending_summary.json").read_text())
     assert math.isclose(summ[1]["wall_per_simulated_s"], 1200.0)
 
@@ -58,3 +58,13 @@ def test_report_reads_each_variant_and_writes_plots_and_the_cost(tmp_path):
 def test_report_without_a_sweep_is_one_line(tmp_path):
     with pytest.raises(CaseError, match="summary.csv"):
         blending_report(tmp_path)
+
+
+def test_report_of_two_sweeps_names_variants_by_folder(tmp_path):
+    for pattern, vrr in (("semi", 3.0), ("internal", 9.0)):
+        sw = tmp_path / pattern
+        _variant(sw, "b25", vrr, 0.5, 100.0, 1.0, "internal" if pattern == "internal" else "semi-mass")
+        (sw / "summary.csv").write_text("name,status\nb25,done\n")
+    res = blending_report([tmp_path / "semi", tmp_path / "internal"], out=tmp_path / "rep")
+    assert [(r["name"], r["vrr"]) for r in res["rows"]] == [("semi/b25", 3.0), ("internal/b25", 9.0)]
+    assert (tmp_path / "rep" / "blending_vrr.png").exists()
