@@ -208,6 +208,9 @@ SILO_KEYS = {
                 "after gate_time where the kinetic energy per particle is below settle_energy",
                 choices=("time", "settled")),
     "gate_time": _nonneg(0.3, "s", "gate opening time ('time') or earliest opening time ('settled')"),
+    "frictionless_fill": Key("bool", False, "-", "fill with zero sliding and rolling friction on every contact "
+                             "(particles and walls), the case's friction from the gate opening on (a DEM stand-in "
+                             "for a silo filled by hand in layers)"),
     "settle_energy": _pos(2e-9, "J", "kinetic energy per particle below which the fill counts as settled"),
     "settle_check_interval": _pos(0.01, "s", "interval of the settled / clogged / empty checks"),
     "clog_time": _pos(0.5, "s", "no outflow for this long while particles remain just above the slot: clogged "
@@ -604,6 +607,8 @@ class SiloScene(Scene):
     # ------------------------------------------------------------------ hooks
     def start(self) -> None:
         d = self.g.d
+        if self.s["frictionless_fill"]:
+            self.sim.system.set_friction(False)
         if self.g.pour:
             self._pour(0.0)
             what = (f"pour of {self.s['n_particles']} particles at {self.s['pour_rate']:g} kg/s (a layer of "
@@ -725,6 +730,8 @@ class SiloScene(Scene):
         self.fill_measure(sys_.pos, sys_.mass)
         self.fill["kinetic_energy_per_particle"] = ke
         sys_.set_wall_active("gate", False)
+        if self.s["frictionless_fill"]:
+            sys_.set_friction(True)
         self.gate_open_time = t
         self.k_field = 0
         self.rec_t.append(t)
@@ -786,6 +793,7 @@ class SiloScene(Scene):
             "fit_residual_rel": fit["residual_rel"],
             "fit_points": fit["n_points"],
             "gate_open_time": self.gate_open_time,
+            "discharge_duration": self.last_out_time - self.gate_open_time if self.ended else math.nan,
             "fill_height": self.fill["fill_height"],
             "fill_particles": self.fill["n_particles"],
             "fill_kinetic_energy_per_particle": self.fill["kinetic_energy_per_particle"],
@@ -801,7 +809,9 @@ class SiloScene(Scene):
                               f"{self.s['fit_range'][1]:g} of the final discharged mass (least squares)",
                        "bulk_density": "mass of the particles with centres in bulk_density_box (x0,y0,z0,x1,y1,z1) "
                                        "over its volume, at the gate opening",
-                       "stop": self.ended},
+                       "stop": self.ended,
+                       "discharge_duration": "s from the gate opening to the removal of the last discharged "
+                                             "particle (NaN: none left, or the run ended before the discharge did)"},
         }
         arrays = {"mass_flow_rate": fit["rate"], "bulk_density": self.fill["bulk_density"],
                   "clogged": np.int64(1 if self.clogged else 0), "silo": silo,
@@ -833,6 +843,8 @@ class SiloScene(Scene):
         self.bodies_out = int(d.get("bodies_out", 0))
         self.layers_done = int(d["layers_done"])
         self.field.set_state(d["field"])
+        if self.s["frictionless_fill"] and not self.gate_open:
+            self.sim.system.set_friction(False)
         for k, v in d["fill"].items():
             self.fill[k] = np.asarray(v, float) if k.startswith("box") else float(v)
 
