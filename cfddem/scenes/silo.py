@@ -215,6 +215,10 @@ SILO_KEYS = {
     "settle_check_interval": _pos(0.01, "s", "interval of the settled / clogged / empty checks"),
     "clog_time": _pos(0.5, "s", "no outflow for this long while particles remain just above the slot: clogged "
                       "(the run stops); with none there: discharge ended (empty)"),
+    "clog_speed": _nonneg(0.0, "m/s", "a clog also needs the particles over the outlet (centres within the slot's x "
+                          "range widened by d on each side, below y = 2 d) to be at rest: all slower than this (0: "
+                          "not checked); while one moves faster the run keeps checking, so an arch that is still "
+                          "collapsing is not reported as a clog"),
     "fit_range": Key("floats", [0.2, 0.8], "-", "mass flow rate: linear fit of discharged mass against time between "
                      "these fractions of the final discharged mass", length=2),
     "field_cell": _nonneg(0.0, "m", "cell size of the time-averaged x-y velocity field (0: 2 d)"),
@@ -715,9 +719,14 @@ class SiloScene(Scene):
             pos = sys_.pos
             above = (np.abs(pos[:, 0] - self.g.xc) < 0.5 * self.g.b) & (pos[:, 1] < 2 * self.g.d)
             if above.any():
+                arch = (np.abs(pos[:, 0] - self.g.xc) < 0.5 * self.g.b + self.g.d) & (pos[:, 1] < 2 * self.g.d)
+                v_arch = float(np.sqrt((sys_.vel[arch] ** 2).sum(axis=1)).max())
+                if v_arch >= self.s["clog_speed"] > 0.0:
+                    return  # the particles over the outlet still move: not (yet) a clog
                 self.clogged = True
                 self.ended = (f"CLOGGED: no outflow for {t - since:.3g} s (since t = {since:.4g} s) with "
-                              f"{int(above.sum())} particle(s) arched over the outlet; {sys_.n} remain in the silo")
+                              f"{int(above.sum())} particle(s) arched over the outlet (fastest of those over it "
+                              f"{v_arch:.2g} m/s); {sys_.n} remain in the silo")
                 sim.log.warning("silo %s", self.ended)
             else:
                 self.ended = (f"discharge ended: no outflow for {t - since:.3g} s (since t = {since:.4g} s) and "
