@@ -42,7 +42,9 @@ m_layer / pour_rate seconds (m_layer the mass of a full layer; the last one is p
 check (so the real rate can fall below pour_rate, never above it).  The gate opens at
 ``gate_time`` (``gate = "time"``) or, with ``gate = "settled"``, at the first check at or after
 ``gate_time`` where all particles are in and the kinetic energy per particle is below
-``settle_energy``.
+``settle_energy``.  With ``frictionless_fill`` the fill runs with zero sliding and rolling
+friction on every contact (:meth:`~cfddem.particles.system.ParticleSystem.set_friction`) and the
+case's friction is switched on at the gate opening.
 
 At the opening: the fill height (:func:`~cfddem.measure.silo.surface_height`, median over 2 d
 wide bins of the highest centre) and the bulk density
@@ -53,15 +55,19 @@ Discharge: particles whose centres fall below y = -removal_depth are removed and
 (``/series/discharged_mass``, the run counters ``mass_out``/``count_out``).  Every
 ``settle_check_interval`` the discharged mass is recorded; if nothing left for ``clog_time``
 the discharge has stopped: CLOGGED if some particle centre lies in the slot's x range below
-y = 2 d (an arch over the outlet), otherwise ended (flat bottom: stagnant heaps remain; hopper:
-empty).  Either way the run stops with that message.  The steady flow rate is the slope of a
+y = 2 d (an arch over the outlet) and, with ``clog_speed`` > 0, every particle over the outlet
+(the slot's x range widened by d, below y = 2 d) is slower than ``clog_speed`` (else the arch is
+still collapsing: the checks go on); otherwise ended (flat bottom: stagnant heaps remain;
+hopper: empty).  Either way the run stops with that message.  The discharge duration (gate
+opening to the removal of the last discharged particle) is stored once the discharge ended.  The steady flow rate is the slope of a
 line through the discharged mass between the ``fit_range`` fractions of the final discharged
 mass (:func:`~cfddem.measure.silo.fit_mass_flow`).  A time-averaged x-y velocity field is sampled
 during discharge and the flow-channel boundary taken from it
 (:func:`~cfddem.measure.silo.channel_boundary`).
 
 Stored in results.h5: ``/measurements/mass_flow_rate`` (kg/s), ``/measurements/bulk_density``
-(kg/m3), ``/measurements/clogged`` (0/1) and the details under ``/measurements/silo``.
+(kg/m3), ``/measurements/clogged`` (0/1) and the details under ``/measurements/silo``
+(``discharge_duration`` among them).
 """
 
 from __future__ import annotations
