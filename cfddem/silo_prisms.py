@@ -101,7 +101,7 @@ def _measured(row: dict) -> dict:
         except (TypeError, ValueError):
             return math.nan
 
-    return {"duration": f("silo/discharge_duration"), "clogged": int(f("clogged") == 1),
+    return {"duration": f("silo/discharge_duration"), "clogged": int(f("clogged") == 1), "rate": f("mass_flow_rate"),
             "ok": row.get("status") in ("done", "skipped") and math.isfinite(f("silo/discharge_duration")),
             "status": row.get("status", ""), "wall": float(row.get("wall_time", math.nan) or math.nan),
             "left": row.get("n_particles", math.nan)}
@@ -136,6 +136,7 @@ def summarise(runs: list[dict]) -> dict:
             "t_std": float(np.std(free, ddof=1)) if len(free) > 1 else math.nan,
             "t_min": min(free) if free else math.nan, "t_max": max(free) if free else math.nan,
             "left": float(np.mean([r["left"] for r in done])) if done else math.nan,
+            "rate": float(np.mean([r["rate"] for r in done if not r["clogged"]])) if len(free) else math.nan,
             "wall": float(np.nansum([r["wall"] for r in runs]))}
 
 
@@ -178,7 +179,7 @@ def silos_study(rows: list[dict], out: Path, d: float) -> list[Path]:
     cols = [("angle", "hopper angle (deg from horizontal, 0 flat)", "{:g}"), ("b_mm", "outlet (mm)", "{:g}"),
             ("b_over_d", "b/d", "{:.2g}"), ("runs", "runs", ""), ("clogged", "clogged", ""),
             ("t_mean", "discharge time (s), runs that did not clog", "{:.3g}"), ("t_std", "std (s)", "{:.2g}"),
-            ("left", "particles left in the silo (mean)", "{:.3g}"), ("wall", "wall time of the runs (s)", "{:.0f}")]
+            ("rate", "steady mass flow rate (kg/s)", "{:.3g}"), ("left", "particles left in the silo (mean)", "{:.3g}"), ("wall", "wall time of the runs (s)", "{:.0f}")]
     files = write_table(out / "silos", cols, table, "Discharge time of the 16 silos (cases/silo_prisms)",
                         ["discharge time: gate opening to the last discharged particle", f"d = {d * 1e3:g} mm"])
     plt = _plt()

@@ -31,16 +31,16 @@ def test_wilson_interval():
 def row(angle, b, seed, duration, clogged, left=0):
     return {"values": {"silo.hopper_angle_deg": angle, "silo.outlet_width": b, "particles.seed": seed},
             "status": "done", "wall_time": 10.0, "n_particles": left,
-            "measurements": {"silo/discharge_duration": duration, "clogged": clogged}}
+            "measurements": {"silo/discharge_duration": duration, "clogged": clogged, "mass_flow_rate": 0.5}}
 
 
 def test_tables_and_charts_from_sweep_rows(tmp_path):
     rows = [row(60.0, 0.15, 1, 1.0, 0), row(60.0, 0.15, 2, 1.2, 0),
             row(60.0, 0.04, 1, 0.3, 1, 250), row(60.0, 0.04, 2, 2.5, 0),
             row(0.0, 0.04, 1, 0.1, 1, 290), row(0.0, 0.04, 2, 0.2, 1, 280)]
-    s = summarise([{"duration": 1.0, "clogged": 0, "ok": True, "wall": 1.0, "left": 0},
-                   {"duration": 1.2, "clogged": 0, "ok": True, "wall": 1.0, "left": 0}])
-    assert s["t_mean"] == pytest.approx(1.1) and s["t_std"] == pytest.approx(0.1414, rel=1e-3)
+    s = summarise([{"duration": 1.0, "clogged": 0, "ok": True, "wall": 1.0, "left": 0, "rate": 0.5},
+                   {"duration": 1.2, "clogged": 0, "ok": True, "wall": 1.0, "left": 0, "rate": 0.7}])
+    assert s["rate"] == pytest.approx(0.6) and s["t_mean"] == pytest.approx(1.1) and s["t_std"] == pytest.approx(0.1414, rel=1e-3)
     files = silos_study(rows, tmp_path, 0.02)
     assert [f.name for f in files] == ["silos.csv", "silos.md", "silos.png"]
     assert all(f.stat().st_size > 0 for f in files)
