@@ -170,6 +170,14 @@ def _plt():
     return plt
 
 
+def _save(fig, path: Path, dpi: int = 120) -> Path:
+    """Lay out, write and close ``fig``."""
+    fig.tight_layout()
+    fig.savefig(path, dpi=dpi)
+    _plt().close(fig)
+    return path
+
+
 ANGLE_LABEL = {60.0: "hopper 60 deg", 45.0: "hopper 45 deg", 30.0: "hopper 30 deg", 0.0: "flat bottom"}
 
 
@@ -200,11 +208,7 @@ def silos_study(rows: list[dict], out: Path, d: float) -> list[Path]:
     ax.set_title("Discharge time (x on the axis: every run clogged)")
     ax.grid(alpha=0.3, which="both")
     ax.legend()
-    fig.tight_layout()
-    png = out / "silos.png"
-    fig.savefig(png, dpi=120)
-    plt.close(fig)
-    return files + [png]
+    return files + [_save(fig, out / "silos.png")]
 
 
 def clogging_study(rows: list[dict], out: Path, d: float) -> list[Path]:
@@ -233,11 +237,7 @@ def clogging_study(rows: list[dict], out: Path, d: float) -> list[Path]:
     ax.set_title(f"Clogging frequency, {n} replicas per silo (95 % Wilson intervals)")
     ax.grid(alpha=0.3)
     ax.legend()
-    fig.tight_layout()
-    png = out / "clogging.png"
-    fig.savefig(png, dpi=120)
-    plt.close(fig)
-    return files + [png]
+    return files + [_save(fig, out / "clogging.png")]
 
 
 def sensitivity_study(rows: list[dict], labels: list[tuple[str, float]], out: Path) -> list[Path]:
@@ -269,11 +269,7 @@ def sensitivity_study(rows: list[dict], labels: list[tuple[str, float]], out: Pa
     axes[0][0].set_ylabel("discharge time (s)")
     axes[0][0].legend(fontsize=8)
     fig.suptitle("Discharge time of the 60 deg / 150 mm silo, one parameter at a time (dashed: the case)")
-    fig.tight_layout()
-    png = out / "sensitivity.png"
-    fig.savefig(png, dpi=110)
-    plt.close(fig)
-    return files + [png]
+    return files + [_save(fig, out / "sensitivity.png", dpi=110)]
 
 
 def _floats(text: str, key: str) -> list[float]:
