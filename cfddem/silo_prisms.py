@@ -67,9 +67,21 @@ def silo_variants(angles, widths, replicas: int) -> list[dict]:
             for a in angles for b in widths for s in _seeds(replicas)]
 
 
-def sensitivity_variants(base, replicas: int) -> list[tuple[str, float, dict]]:
+def base_values(base) -> dict[str, float]:
+    """The case's own value of each parameter of the sensitivity study (its point in each panel)."""
+    from .particles.contact import contact_law
+
+    pp = base.resolved["contact"]["particle_particle"]
+    m = base.particles.density * math.pi / 6.0 * base.particles.diameter ** 3
+    law = contact_law(pp, "linear")
+    return {"k_n factor": 1.0, "k_t/k_n": law.k_t / law.k_n, "friction mu_pp": pp["mu"], "restitution e_n": pp["e_n"],
+            "tangential damping (1/s)": law.derived(0.5 * m)["eta_t"] / (0.5 * m)}
+
+
+def sensitivity_variants(base, replicas: int, base_replicas: int = 3) -> list[tuple[str, float, dict]]:
     """(parameter, value, overrides) of the one-at-a-time study around ``base`` (the loaded
-    case); the base itself first, as ('base', 0, {})."""
+    case); the base itself first, as ('base', 0, {}), with at least ``base_replicas`` seeds:
+    their spread is the scale against which a change counts."""
     pp, pw = base.resolved["contact"]["particle_particle"], base.resolved["contact"]["particle_wall"]
     kn, dt = pp["k_n"], base.time.dt
     m = base.particles.density * math.pi / 6.0 * base.particles.diameter ** 3
@@ -89,7 +101,8 @@ def sensitivity_variants(base, replicas: int) -> list[tuple[str, float, dict]]:
     for _, _, o in out:
         if any(v is None for v in o.values()):
             raise CaseError(PP + "k_t_ratio", "the tangential-damping variants need k_t_ratio set in the case")
-    return [(p, v, dict(o, **{"particles.seed": s})) for p, v, o in out for s in _seeds(replicas)]
+    return [(p, v, dict(o, **{"particles.seed": s})) for p, v, o in out
+            for s in _seeds(max(replicas, base_replicas) if p == "base" else replicas)]
 
 
 def _measured(row: dict) -> dict:
@@ -240,13 +253,15 @@ def clogging_study(rows: list[dict], out: Path, d: float) -> list[Path]:
     return files + [_save(fig, out / "clogging.png")]
 
 
-def sensitivity_study(rows: list[dict], labels: list[tuple[str, float]], out: Path) -> list[Path]:
+def sensitivity_study(rows: list[dict], labels: list[tuple[str, float]], out: Path,
+                      base_at: dict[str, float] | None = None) -> list[Path]:
     by: dict = {}
     for r, lab in zip(rows, labels):
         by.setdefault(lab, []).append(_measured(r))
     table = [dict(parameter=p, value=v, **summarise(runs)) for (p, v), runs in by.items()]
     base = next((t for t in table if t["parameter"] == "base"), None)
     t0 = base["t_mean"] if base else math.nan
+    base_runs = [r["duration"] for r in by.get(("base", 0.0), []) if r["ok"] and not r["clogged"]]
     for t in table:
         t["change"] = t["t_mean"] / t0 - 1.0 if math.isfinite(t0) else math.nan
     cols = [("parameter", "parameter", ""), ("value", "value", "{:g}"), ("finished", "runs", ""),
@@ -258,17 +273,25 @@ def sensitivity_study(rows: list[dict], labels: list[tuple[str, float]], out: Pa
     params = [p for p in dict.fromkeys(t["parameter"] for t in table) if p != "base"]
     fig, axes = plt.subplots(1, len(params), figsize=(3.0 * len(params), 3.4), sharey=True, squeeze=False)
     for ax, p in zip(axes[0], params):
-        tb = sorted((t for t in table if t["parameter"] == p), key=lambda t: t["value"])
+        tb = [t for t in table if t["parameter"] == p]
+        if base and base_at and p in base_at:
+            tb.append(dict(base, value=base_at[p]))
+        tb.sort(key=lambda t: t["value"])
         ax.plot([t["value"] for t in tb], [t["t_mean"] for t in tb], "o-")
         if math.isfinite(t0):
-            ax.axhline(t0, color="k", lw=0.8, ls="--", label="base case")
+            ax.axhline(t0, color="k", lw=0.8, ls="--", label="the case")
+        if len(base_runs) > 1:
+            ax.axhspan(min(base_runs), max(base_runs), color="0.85", label=f"the case, {len(base_runs)} fills")
+        if base and base_at and p in base_at:
+            ax.plot([base_at[p]], [t0], "s", color="k", ms=6)
         ax.set_xlabel(p)
         if p == "k_n factor":
             ax.set_xscale("log", base=2)
         ax.grid(alpha=0.3)
     axes[0][0].set_ylabel("discharge time (s)")
     axes[0][0].legend(fontsize=8)
-    fig.suptitle("Discharge time of the 60 deg / 150 mm silo, one parameter at a time (dashed: the case)")
+    fig.suptitle("Discharge time of the 60 deg / 150 mm silo, one parameter at a time (square, dashed: the case, "
+                 "mean of its fills; grey: their range)")
     return files + [_save(fig, out / "sensitivity.png", dpi=110)]
 
 
@@ -316,7 +339,7 @@ def main(argv=None) -> int:
         elif args.study == "clogging":
             files = clogging_study(rows, out, d)
         else:
-            files = sensitivity_study(rows, labels, out)
+            files = sensitivity_study(rows, labels, out, base_values(base))
     except CaseError as e:
         print(f"cfddem: error: {e}", file=sys.stderr)
         return 2
