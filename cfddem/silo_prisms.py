@@ -114,8 +114,11 @@ def _measured(row: dict) -> dict:
         except (TypeError, ValueError):
             return math.nan
 
-    return {"duration": f("silo/discharge_duration"), "clogged": int(f("clogged") == 1), "rate": f("mass_flow_rate"),
-            "ok": row.get("status") in ("done", "skipped") and math.isfinite(f("silo/discharge_duration")),
+    clogged = int(f("clogged") == 1)
+    # finished: the discharge ended (a clog before any particle left has no duration, NaN)
+    return {"duration": f("silo/discharge_duration"), "clogged": clogged, "rate": f("mass_flow_rate"),
+            "rho_b": f("bulk_density"),
+            "ok": row.get("status") in ("done", "skipped") and (clogged or math.isfinite(f("silo/discharge_duration"))),
             "status": row.get("status", ""), "wall": float(row.get("wall_time", math.nan) or math.nan),
             "left": row.get("n_particles", math.nan)}
 
@@ -150,6 +153,7 @@ def summarise(runs: list[dict]) -> dict:
             "t_min": min(free) if free else math.nan, "t_max": max(free) if free else math.nan,
             "left": float(np.mean([r["left"] for r in done])) if done else math.nan,
             "rate": float(np.mean([r["rate"] for r in done if not r["clogged"]])) if len(free) else math.nan,
+            "rho_b": float(np.nanmean([r["rho_b"] for r in done])) if done else math.nan,
             "wall": float(np.nansum([r["wall"] for r in runs]))}
 
 
@@ -194,15 +198,34 @@ def _save(fig, path: Path, dpi: int = 120) -> Path:
 ANGLE_LABEL = {60.0: "hopper 60 deg", 45.0: "hopper 45 deg", 30.0: "hopper 30 deg", 0.0: "flat bottom"}
 
 
-def silos_study(rows: list[dict], out: Path, d: float) -> list[Path]:
+def beverloo_notes(table: list[dict], d: float, depth: float) -> list[str]:
+    """Per hopper angle, the Beverloo law W = C rho_b sqrt(g) L (b - k d)^1.5 fitted to the
+    steady flow rates of the outlets that did not clog (at least two; rho_b the mean bulk
+    density at the gate opening, L the silo depth)."""
+    from .measure.silo import fit_beverloo
+
+    notes = []
+    for a in ANGLES:
+        tb = [t for t in table if t["angle"] == a and math.isfinite(t["rate"]) and t["rate"] > 0]
+        rho = float(np.nanmean([t["rho_b"] for t in tb])) if tb else math.nan
+        if len(tb) < 2 or not math.isfinite(rho):
+            continue
+        f = fit_beverloo([t["b_mm"] * 1e-3 for t in tb], [t["rate"] for t in tb], rho, depth, d)
+        notes.append(f"{ANGLE_LABEL[a]}: Beverloo fit to {len(tb)} outlets: C = {f['C']:.3g}, k = {f['k']:.3g} "
+                     f"(rms relative residual {f['rms_rel_residual']:.2g}; rho_b = {rho:.4g} kg/m3)")
+    return notes
+
+
+def silos_study(rows: list[dict], out: Path, d: float, depth: float = 0.022) -> list[Path]:
     groups = group_rows(rows, lambda v: (v["silo.hopper_angle_deg"], v["silo.outlet_width"]))
     table = [dict(angle=a, b_mm=b * 1e3, b_over_d=b / d, **summarise(r)) for (a, b), r in groups.items()]
     cols = [("angle", "hopper angle (deg from horizontal, 0 flat)", "{:g}"), ("b_mm", "outlet (mm)", "{:g}"),
             ("b_over_d", "b/d", "{:.2g}"), ("runs", "runs", ""), ("clogged", "clogged", ""),
             ("t_mean", "discharge time (s), runs that did not clog", "{:.3g}"), ("t_std", "std (s)", "{:.2g}"),
             ("rate", "steady mass flow rate (kg/s)", "{:.3g}"), ("left", "particles left in the silo (mean)", "{:.3g}"), ("wall", "wall time of the runs (s)", "{:.0f}")]
-    files = write_table(out / "silos", cols, table, "Discharge time of the 16 silos (cases/silo_prisms)",
-                        ["discharge time: gate opening to the last discharged particle", f"d = {d * 1e3:g} mm"])
+    notes = ["discharge time: gate opening to the last discharged particle", f"d = {d * 1e3:g} mm"]
+    notes += beverloo_notes(table, d, depth)
+    files = write_table(out / "silos", cols, table, "Discharge time of the 16 silos (cases/silo_prisms)", notes)
     plt = _plt()
     fig, ax = plt.subplots(figsize=(6.4, 4.6))
     for a in ANGLES:
@@ -335,7 +358,7 @@ def main(argv=None) -> int:
         rows = run_sweep(args.case, variants, out, common=args.overrides, workers=args.workers,
                          threads=args.threads, chart="silo/discharge_duration")
         if args.study == "silos":
-            files = silos_study(rows, out, d)
+            files = silos_study(rows, out, d, base.silo.depth)
         elif args.study == "clogging":
             files = clogging_study(rows, out, d)
         else:
