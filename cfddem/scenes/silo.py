@@ -55,8 +55,9 @@ Discharge: particles whose centres fall below y = -removal_depth are removed and
 (``/series/discharged_mass``, the run counters ``mass_out``/``count_out``).  Every
 ``settle_check_interval`` the discharged mass is recorded; if nothing left for ``clog_time``
 the discharge has stopped: CLOGGED if some particle centre lies in the slot's x range below
-y = 2 d (an arch over the outlet) and, with ``clog_speed`` > 0, every particle over the outlet
-(the slot's x range widened by d, below y = 2 d) is slower than ``clog_speed`` (else the arch is
+y = 2 d (flat) or 2 d (1 + tan a) (hopper: where it is 4 d wider than the slot) (an arch over
+the outlet) and, with ``clog_speed`` > 0, every particle over the outlet (the slot's x range
+widened by d, below that height) is slower than ``clog_speed`` (else the arch is
 still collapsing: the checks go on); otherwise ended (flat bottom: stagnant heaps remain;
 hopper: empty).  Either way the run stops with that message.  The discharge duration (gate
 opening to the removal of the last discharged particle) is stored once the discharge ended.  The steady flow rate is the slope of a
@@ -115,6 +116,9 @@ class SiloGeometry:
         self.lip = silo["lip"] or d
         self.xc = 0.5 * self.W
         self.y_h = 0.5 * (self.W - self.b) * math.tan(self.angle) if self.angle > 0 else 0.0
+        # top of the region where an arch over the outlet is looked for: 2 d (flat); in a hopper up
+        # to where it is 4 d wider than the slot, 2 d (1 + tan a) (an arch spans the converging walls)
+        self.y_arch = 2.0 * d * (1.0 + (math.tan(self.angle) if self.angle > 0 else 0.0))
         self.removal_depth = silo["removal_depth"] or (self.lip + 1.5 * d)
         self.lattice = fill_lattice(self.W, self.L, self.y_h, self.d_site, silo["n_particles"], silo["lattice_gap"],
                                     silo["lattice_jitter"], seed)
@@ -222,7 +226,7 @@ SILO_KEYS = {
     "clog_time": _pos(0.5, "s", "no outflow for this long while particles remain just above the slot: clogged "
                       "(the run stops); with none there: discharge ended (empty)"),
     "clog_speed": _nonneg(0.0, "m/s", "a clog also needs the particles over the outlet (centres within the slot's x "
-                          "range widened by d on each side, below y = 2 d) to be at rest: all slower than this (0: "
+                          "range widened by d on each side, below the arch height: 2 d, in a hopper 2 d (1 + tan a)) to be at rest: all slower than this (0: "
                           "not checked); while one moves faster the run keeps checking, so an arch that is still "
                           "collapsing is not reported as a clog"),
     "fit_range": Key("floats", [0.2, 0.8], "-", "mass flow rate: linear fit of discharged mass against time between "
@@ -723,9 +727,9 @@ class SiloScene(Scene):
         since = self.last_out_time if math.isfinite(self.last_out_time) else self.gate_open_time
         if t - since >= self.s["clog_time"] - half:
             pos = sys_.pos
-            above = (np.abs(pos[:, 0] - self.g.xc) < 0.5 * self.g.b) & (pos[:, 1] < 2 * self.g.d)
+            above = (np.abs(pos[:, 0] - self.g.xc) < 0.5 * self.g.b) & (pos[:, 1] < self.g.y_arch)
             if above.any():
-                arch = (np.abs(pos[:, 0] - self.g.xc) < 0.5 * self.g.b + self.g.d) & (pos[:, 1] < 2 * self.g.d)
+                arch = (np.abs(pos[:, 0] - self.g.xc) < 0.5 * self.g.b + self.g.d) & (pos[:, 1] < self.g.y_arch)
                 v_arch = float(np.sqrt((sys_.vel[arch] ** 2).sum(axis=1)).max())
                 if v_arch >= self.s["clog_speed"] > 0.0:
                     return  # the particles over the outlet still move: not (yet) a clog

@@ -58,9 +58,13 @@ def test_short_discharge_conserves_particles(tmp_path, one_numba_thread):
     assert sim.system._pp_params[0, 5] == pytest.approx(0.38) and sim.system._wpar[2, 5] == pytest.approx(0.44)
 
 
-def test_narrow_outlet_clogs_with_an_arch(tmp_path, one_numba_thread):
+@pytest.mark.parametrize("angle", [0.0, 60.0])
+def test_narrow_outlet_clogs_with_an_arch(tmp_path, one_numba_thread, angle):
+    """Flat: the arch rests on the slot edges; 60 deg hopper: it spans the converging walls, up
+    to y = 2 d (1 + tan 60) = 109 mm (the arch region of the scene)."""
     b = 2.0 * D  # the paper's narrowest outlet, 40 mm
-    sim, summary, h5 = run(tmp_path, "clog", b, 0.0, 3.0)
+    y_arch = 2 * D * (1 + math.tan(math.radians(angle)))
+    sim, summary, h5 = run(tmp_path, "clog", b, angle, 3.0)
     assert summary.status == "done"
     assert summary.message.startswith("CLOGGED"), summary.message
     assert summary.time < 3.0 - 0.2  # stopped by the clog, not the end time
@@ -73,7 +77,7 @@ def test_narrow_outlet_clogs_with_an_arch(tmp_path, one_numba_thread):
     last = max(list_snapshots(h5), key=lambda x: x[1])
     snap = read_snapshot(h5, last[0])
     pos, vel = snap["pos"], snap["vel"]
-    near = (np.abs(pos[:, 0] - 0.15) < 0.5 * b + D) & (pos[:, 1] < 2 * D)
+    near = (np.abs(pos[:, 0] - 0.15) < 0.5 * b + D) & (pos[:, 1] < y_arch)
     assert near.sum() >= 2
     assert pos[near, 0].min() < 0.15 < pos[near, 0].max()  # spans the slot centre
     assert np.abs(vel[near]).max() < 0.01  # static
