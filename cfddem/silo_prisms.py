@@ -228,20 +228,29 @@ def silos_study(rows: list[dict], out: Path, d: float, depth: float = 0.022) -> 
     files = write_table(out / "silos", cols, table, "Discharge time of the 16 silos (cases/silo_prisms)", notes)
     plt = _plt()
     fig, ax = plt.subplots(figsize=(6.4, 4.6))
-    for a in ANGLES:
+    for i, a in enumerate(ANGLES):
         tb = sorted((t for t in table if t["angle"] == a), key=lambda t: t["b_mm"])
         if not tb:
             continue
         ok = [t for t in tb if math.isfinite(t["t_mean"])]
         line, = ax.plot([t["b_mm"] for t in ok], [t["t_mean"] for t in ok], "o-", label=ANGLE_LABEL.get(a, f"{a:g} deg"))
+        for t in ok:
+            if t["clogged"]:
+                ax.annotate(f"{t['clogged']}/{t['finished']} clogged", (t["b_mm"], t["t_mean"]), fontsize=7,
+                            xytext=(4, 4), textcoords="offset points", color=line.get_color())
         cl = [t for t in tb if t["clogged"] == t["finished"] and t["finished"]]
-        if cl:
-            ax.plot([t["b_mm"] for t in cl], [0.0] * len(cl), "x", ms=10, mew=2, color=line.get_color(),
-                    transform=ax.get_xaxis_transform(), clip_on=False)
+        if cl:  # side by side per angle
+            ax.plot([t["b_mm"] + 2.5 * (i - 1.5) for t in cl], [0.02] * len(cl), "x", ms=9, mew=2,
+                    color=line.get_color(), transform=ax.get_xaxis_transform(), clip_on=False)
     ax.set_yscale("log")
+    from matplotlib.ticker import ScalarFormatter
+
+    for axis in (ax.yaxis,):
+        axis.set_major_formatter(ScalarFormatter())
+        axis.set_minor_formatter(ScalarFormatter())
     ax.set_xlabel("outlet width b (mm)")
     ax.set_ylabel("discharge time (s)")
-    ax.set_title("Discharge time (x on the axis: every run clogged)")
+    ax.set_title("Discharge time, runs that did not clog (x at the bottom: all clogged)", fontsize=10)
     ax.grid(alpha=0.3, which="both")
     ax.legend()
     return files + [_save(fig, out / "silos.png")]
