@@ -26,7 +26,7 @@ from cfddem.particles import clumps as cl
 from cfddem.particles import integrate as it
 from cfddem.particles import neighbours as nb
 from cfddem.particles import mesh as mw
-from cfddem.particles.contact import ContactLaw
+from cfddem.particles.contact import P_MU, P_MUR, ContactLaw
 from cfddem.particles.walls import KIND_OFF, Wall, pack_walls
 
 
@@ -95,6 +95,7 @@ class ParticleSystem:
         self._skin_user = skin
         self._pp_params = pp.params().reshape(1, -1)
         self._has_roll = pp.mu_r > 0.0
+        self._friction_built = None  # (mu, mu_r) of the contact tables as built (set_friction)
         self._has_ext = False
         self._wgeom, self._wref, self._wpar = pack_walls(self.walls)
         self.nw = len(self.walls)
@@ -904,6 +905,18 @@ class ParticleSystem:
             self._whist[:n, k] = 0.0
             self._wfw[:n, k] = 0.0
             self._wtw[:n, k] = 0.0
+        self._forces_stale = True
+
+    def set_friction(self, on: bool) -> None:
+        """Switch the sliding and rolling friction of every contact (particle-particle, walls,
+        mesh walls) off, or back on to the values the system was built with: a frictionless
+        fill (the silo's ``frictionless_fill``).  Off keeps the tangential springs and dampers
+        (with mu = 0 the Coulomb limit makes the tangential force zero)."""
+        tables = [self._pp_params, self._wpar, self._mt.par]
+        if self._friction_built is None:
+            self._friction_built = [t[:, [P_MU, P_MUR]].copy() for t in tables]
+        for t, built in zip(tables, self._friction_built):
+            t[:, [P_MU, P_MUR]] = built if on else 0.0
         self._forces_stale = True
 
     def wall_active(self, wall) -> bool:

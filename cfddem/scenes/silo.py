@@ -42,7 +42,9 @@ m_layer / pour_rate seconds (m_layer the mass of a full layer; the last one is p
 check (so the real rate can fall below pour_rate, never above it).  The gate opens at
 ``gate_time`` (``gate = "time"``) or, with ``gate = "settled"``, at the first check at or after
 ``gate_time`` where all particles are in and the kinetic energy per particle is below
-``settle_energy``.
+``settle_energy``.  With ``frictionless_fill`` the fill runs with zero sliding and rolling
+friction on every contact (:meth:`~cfddem.particles.system.ParticleSystem.set_friction`) and the
+case's friction is switched on at the gate opening.
 
 At the opening: the fill height (:func:`~cfddem.measure.silo.surface_height`, median over 2 d
 wide bins of the highest centre) and the bulk density
@@ -53,15 +55,20 @@ Discharge: particles whose centres fall below y = -removal_depth are removed and
 (``/series/discharged_mass``, the run counters ``mass_out``/``count_out``).  Every
 ``settle_check_interval`` the discharged mass is recorded; if nothing left for ``clog_time``
 the discharge has stopped: CLOGGED if some particle centre lies in the slot's x range below
-y = 2 d (an arch over the outlet), otherwise ended (flat bottom: stagnant heaps remain; hopper:
-empty).  Either way the run stops with that message.  The steady flow rate is the slope of a
+y = 2 d (flat) or 2 d (1 + tan a) (hopper: where it is 4 d wider than the slot) (an arch over
+the outlet) and, with ``clog_speed`` > 0, every particle over the outlet (the slot's x range
+widened by d, below that height) is slower than ``clog_speed`` (else the arch is
+still collapsing: the checks go on); otherwise ended (flat bottom: stagnant heaps remain;
+hopper: empty).  Either way the run stops with that message.  The discharge duration (gate
+opening to the removal of the last discharged particle) is stored once the discharge ended.  The steady flow rate is the slope of a
 line through the discharged mass between the ``fit_range`` fractions of the final discharged
 mass (:func:`~cfddem.measure.silo.fit_mass_flow`).  A time-averaged x-y velocity field is sampled
 during discharge and the flow-channel boundary taken from it
 (:func:`~cfddem.measure.silo.channel_boundary`).
 
 Stored in results.h5: ``/measurements/mass_flow_rate`` (kg/s), ``/measurements/bulk_density``
-(kg/m3), ``/measurements/clogged`` (0/1) and the details under ``/measurements/silo``.
+(kg/m3), ``/measurements/clogged`` (0/1) and the details under ``/measurements/silo``
+(``discharge_duration`` among them).
 """
 
 from __future__ import annotations
@@ -109,6 +116,9 @@ class SiloGeometry:
         self.lip = silo["lip"] or d
         self.xc = 0.5 * self.W
         self.y_h = 0.5 * (self.W - self.b) * math.tan(self.angle) if self.angle > 0 else 0.0
+        # top of the region where an arch over the outlet is looked for: 2 d (flat); in a hopper up
+        # to where it is 4 d wider than the slot, 2 d (1 + tan a) (an arch spans the converging walls)
+        self.y_arch = 2.0 * d * (1.0 + (math.tan(self.angle) if self.angle > 0 else 0.0))
         self.removal_depth = silo["removal_depth"] or (self.lip + 1.5 * d)
         self.lattice = fill_lattice(self.W, self.L, self.y_h, self.d_site, silo["n_particles"], silo["lattice_gap"],
                                     silo["lattice_jitter"], seed)
@@ -208,10 +218,17 @@ SILO_KEYS = {
                 "after gate_time where the kinetic energy per particle is below settle_energy",
                 choices=("time", "settled")),
     "gate_time": _nonneg(0.3, "s", "gate opening time ('time') or earliest opening time ('settled')"),
+    "frictionless_fill": Key("bool", False, "-", "fill with zero sliding and rolling friction on every contact "
+                             "(particles and walls), the case's friction from the gate opening on (a DEM stand-in "
+                             "for a silo filled by hand in layers)"),
     "settle_energy": _pos(2e-9, "J", "kinetic energy per particle below which the fill counts as settled"),
     "settle_check_interval": _pos(0.01, "s", "interval of the settled / clogged / empty checks"),
     "clog_time": _pos(0.5, "s", "no outflow for this long while particles remain just above the slot: clogged "
                       "(the run stops); with none there: discharge ended (empty)"),
+    "clog_speed": _nonneg(0.0, "m/s", "a clog also needs the particles over the outlet (centres within the slot's x "
+                          "range widened by d on each side, below the arch height: 2 d, in a hopper 2 d (1 + tan a)) to be at rest: all slower than this (0: "
+                          "not checked); while one moves faster the run keeps checking, so an arch that is still "
+                          "collapsing is not reported as a clog"),
     "fit_range": Key("floats", [0.2, 0.8], "-", "mass flow rate: linear fit of discharged mass against time between "
                      "these fractions of the final discharged mass", length=2),
     "field_cell": _nonneg(0.0, "m", "cell size of the time-averaged x-y velocity field (0: 2 d)"),
@@ -605,6 +622,8 @@ class SiloScene(Scene):
     # ------------------------------------------------------------------ hooks
     def start(self) -> None:
         d = self.g.d
+        if self.s["frictionless_fill"]:
+            self.sim.system.set_friction(False)
         if self.g.pour:
             self._pour(0.0)
             what = (f"pour of {self.s['n_particles']} particles at {self.s['pour_rate']:g} kg/s (a layer of "
@@ -709,11 +728,16 @@ class SiloScene(Scene):
         since = self.last_out_time if math.isfinite(self.last_out_time) else self.gate_open_time
         if t - since >= self.s["clog_time"] - half:
             pos = sys_.pos
-            above = (np.abs(pos[:, 0] - self.g.xc) < 0.5 * self.g.b) & (pos[:, 1] < 2 * self.g.d)
+            above = (np.abs(pos[:, 0] - self.g.xc) < 0.5 * self.g.b) & (pos[:, 1] < self.g.y_arch)
             if above.any():
+                arch = (np.abs(pos[:, 0] - self.g.xc) < 0.5 * self.g.b + self.g.d) & (pos[:, 1] < self.g.y_arch)
+                v_arch = float(np.sqrt((sys_.vel[arch] ** 2).sum(axis=1)).max())
+                if v_arch >= self.s["clog_speed"] > 0.0:
+                    return  # the particles over the outlet still move: not (yet) a clog
                 self.clogged = True
                 self.ended = (f"CLOGGED: no outflow for {t - since:.3g} s (since t = {since:.4g} s) with "
-                              f"{int(above.sum())} particle(s) arched over the outlet; {sys_.n} remain in the silo")
+                              f"{int(above.sum())} particle(s) arched over the outlet (fastest of those over it "
+                              f"{v_arch:.2g} m/s); {sys_.n} remain in the silo")
                 sim.log.warning("silo %s", self.ended)
             else:
                 self.ended = (f"discharge ended: no outflow for {t - since:.3g} s (since t = {since:.4g} s) and "
@@ -726,6 +750,8 @@ class SiloScene(Scene):
         self.fill_measure(sys_.pos, sys_.mass)
         self.fill["kinetic_energy_per_particle"] = ke
         sys_.set_wall_active("gate", False)
+        if self.s["frictionless_fill"]:
+            sys_.set_friction(True)
         self.gate_open_time = t
         self.k_field = 0
         self.rec_t.append(t)
@@ -791,6 +817,7 @@ class SiloScene(Scene):
             "fit_residual_rel": fit["residual_rel"],
             "fit_points": fit["n_points"],
             "gate_open_time": self.gate_open_time,
+            "discharge_duration": self.last_out_time - self.gate_open_time if self.ended else math.nan,
             "fill_height": self.fill["fill_height"],
             "fill_particles": self.fill["n_particles"],
             "fill_kinetic_energy_per_particle": self.fill["kinetic_energy_per_particle"],
@@ -806,7 +833,9 @@ class SiloScene(Scene):
                               f"{self.s['fit_range'][1]:g} of the final discharged mass (least squares)",
                        "bulk_density": "mass of the particles with centres in bulk_density_box (x0,y0,z0,x1,y1,z1) "
                                        "over its volume, at the gate opening",
-                       "stop": self.ended},
+                       "stop": self.ended,
+                       "discharge_duration": "s from the gate opening to the removal of the last discharged "
+                                             "particle (NaN: none left, or the run ended before the discharge did)"},
         }
         arrays = {"mass_flow_rate": fit["rate"], "bulk_density": self.fill["bulk_density"],
                   "clogged": np.int64(1 if self.clogged else 0), "silo": silo,
@@ -838,6 +867,8 @@ class SiloScene(Scene):
         self.bodies_out = int(d.get("bodies_out", 0))
         self.layers_done = int(d["layers_done"])
         self.field.set_state(d["field"])
+        if self.s["frictionless_fill"] and not self.gate_open:
+            self.sim.system.set_friction(False)
         for k, v in d["fill"].items():
             self.fill[k] = np.asarray(v, float) if k.startswith("box") else float(v)
 

@@ -1,10 +1,12 @@
 """Linear spring-dashpot contact law (``contact.model = "linear"``, model id 0; physics.md §1.1).
 
 Cundall & Strack 1979; damping from the restitution coefficient as in LIGGGHTS ``hooke`` and
-Silbert et al. 2001.  Inputs (k_n, e_n, e_t, mu, mu_r):
+Silbert et al. 2001.  Inputs (k_n, e_n, e_t, mu, mu_r; optionally k_t_ratio):
 
     eta_n = -2 ln(e_n) sqrt(m* k_n) / sqrt(pi^2 + ln^2 e_n)
-    k_t   = (2/7) k_n (pi^2 + ln^2 e_t) / (pi^2 + ln^2 e_n)
+    k_t   = (2/7) k_n (pi^2 + ln^2 e_t) / (pi^2 + ln^2 e_n)   (k_t_ratio = 0, the default)
+    k_t   = k_t_ratio k_n                                     (k_t_ratio > 0: a given stiffness ratio,
+                                                               as in DEM papers that state k_t/k_n)
     eta_t = -2 ln(e_t) sqrt(m_t k_t) / sqrt(pi^2 + ln^2 e_t),    m_t = (2/7) m*
     t_c   = sqrt(m* (pi^2 + ln^2 e_n) / k_n)
 
@@ -32,6 +34,9 @@ LINEAR_KEYS = (
            lo=0.0, lo_open=True, hi=1.0),
     LawKey("e_t", "-", "tangential restitution of a sticking collision", "tangential restitution", 0.33,
            lo=0.0, lo_open=True, hi=1.0),
+    LawKey("k_t_ratio", "-", "linear law: tangential stiffness k_t / k_n (0: derived from e_n and e_t, equal normal "
+           "and tangential collision times); when set, e_t sets only the tangential damping (the restitution of "
+           "one tangential half-oscillation of mass 2/7 m*)", "tangential stiffness ratio", 0.0, lo=0.0),
 ) + FRICTION_KEYS
 
 
@@ -84,7 +89,8 @@ class LinearContact(ContactLaw):
 
     Parameters: normal stiffness ``k_n`` [N/m], normal restitution ``e_n``, tangential
     restitution of a sticking collision ``e_t``, Coulomb friction ``mu``, rolling friction
-    ``mu_r`` (constant directional torque, physics.md §1.3).
+    ``mu_r`` (constant directional torque, physics.md §1.3); ``k_t_ratio`` > 0 sets k_t = k_t_ratio
+    k_n instead of deriving it (e_t then sets the tangential damping ratio only).
     """
 
     name = "linear"
@@ -104,6 +110,7 @@ class LinearContact(ContactLaw):
     e_t: float
     mu: float
     mu_r: float = 0.0
+    k_t_ratio: float = 0.0
 
     def __post_init__(self):
         self._check_keys()
@@ -111,7 +118,9 @@ class LinearContact(ContactLaw):
     # --- coefficients -------------------------------------------------------------------
     @property
     def k_t(self) -> float:
-        """k_t = (2/7) k_n (pi^2 + ln^2 e_t) / (pi^2 + ln^2 e_n)."""
+        """k_t = (2/7) k_n (pi^2 + ln^2 e_t) / (pi^2 + ln^2 e_n), or k_t_ratio k_n when that is set."""
+        if self.k_t_ratio > 0.0:
+            return self.k_t_ratio * self.k_n
         ln_n, ln_t = math.log(self.e_n), math.log(self.e_t)
         return 2.0 / 7.0 * self.k_n * (math.pi**2 + ln_t**2) / (math.pi**2 + ln_n**2)
 
