@@ -907,16 +907,21 @@ class ParticleSystem:
             self._wtw[:n, k] = 0.0
         self._forces_stale = True
 
-    def set_friction(self, on: bool) -> None:
+    def set_friction(self, on: bool, pp_mu: float | None = None) -> None:
         """Switch the sliding and rolling friction of every contact (particle-particle, walls,
         mesh walls) off, or back on to the values the system was built with: a frictionless
         fill (the silo's ``frictionless_fill``).  Off keeps the tangential springs and dampers
-        (with mu = 0 the Coulomb limit makes the tangential force zero)."""
+        (with mu = 0 the Coulomb limit makes the tangential force zero).  With ``pp_mu`` (and
+        ``on`` False) only the particle-particle sliding friction is set, to ``pp_mu``, and
+        everything else keeps its built value: a fill with a lower friction (the silo's
+        ``fill_friction``, the blending thesis's 0.15)."""
         tables = [self._pp_params, self._wpar, self._mt.par]
         if self._friction_built is None:
             self._friction_built = [t[:, [P_MU, P_MUR]].copy() for t in tables]
-        for t, built in zip(tables, self._friction_built):
-            t[:, [P_MU, P_MUR]] = built if on else 0.0
+        for k, (t, built) in enumerate(zip(tables, self._friction_built)):
+            t[:, [P_MU, P_MUR]] = built if on or pp_mu is not None else 0.0
+            if not on and pp_mu is not None and k == 0:
+                t[:, P_MU] = float(pp_mu)
         self._forces_stale = True
 
     def wall_active(self, wall) -> bool:

@@ -59,8 +59,8 @@ Stored in results.h5 under ``/measurements/blending`` (time, concentration_out, 
 count_by_label, concentration_in, concentration_reentry, channel_velocity, n_recirculations,
 t_mean, density_time, bulk_density, the fill colouring) beside the silo's ``/measurements/silo``.
 
-Contact parameters cannot change during a run (the engine has no API for it), so the thesis's
-lower filling friction (mu_pp 0.15 during the fill) is not supported.
+The thesis's lower filling friction (mu_pp 0.15 during the fill, the calibrated values from the
+gate opening) is the silo's ``fill_friction`` key.
 """
 
 from __future__ import annotations

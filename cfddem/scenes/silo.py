@@ -221,6 +221,9 @@ SILO_KEYS = {
     "frictionless_fill": Key("bool", False, "-", "fill with zero sliding and rolling friction on every contact "
                              "(particles and walls), the case's friction from the gate opening on (a DEM stand-in "
                              "for a silo filled by hand in layers)"),
+    "fill_friction": Key("float", -1.0, "-", "particle-particle sliding friction during the fill (the blending "
+                         "thesis filled with 0.15 to pack densely), the case's value from the gate opening on; walls "
+                         "and rolling friction keep theirs (-1: the case's friction throughout)", lo=-1.0),
     "settle_energy": _pos(2e-9, "J", "kinetic energy per particle below which the fill counts as settled"),
     "settle_check_interval": _pos(0.01, "s", "interval of the settled / clogged / empty checks"),
     "clog_time": _pos(0.5, "s", "no outflow for this long while particles remain just above the slot: clogged "
@@ -253,6 +256,10 @@ def check_silo_case(r: dict) -> None:
         raise CaseError("gravity.inclination_deg", "the silo needs gravity along -y (inclination 0)")
     if r["frame"]["rpm"] != 0.0:
         raise CaseError("frame.rpm", "the silo runs in an inertial frame (0)")
+    if s["fill_friction"] >= 0.0 and s["frictionless_fill"]:
+        raise CaseError("silo.fill_friction", "give either a fill friction or frictionless_fill = true, not both")
+    if s["fill_friction"] != -1.0 and s["fill_friction"] < 0.0:
+        raise CaseError("silo.fill_friction", f"{s['fill_friction']:g} must be >= 0 (or -1: unchanged)")
     if not s["outlet_width"] < s["width"] - 2 * d:
         raise CaseError("silo.outlet_width", f"{s['outlet_width']:g} m leaves no bottom: must be below "
                                              f"silo.width - 2 d = {s['width'] - 2 * d:g} m")
@@ -622,8 +629,7 @@ class SiloScene(Scene):
     # ------------------------------------------------------------------ hooks
     def start(self) -> None:
         d = self.g.d
-        if self.s["frictionless_fill"]:
-            self.sim.system.set_friction(False)
+        self._fill_friction()
         if self.g.pour:
             self._pour(0.0)
             what = (f"pour of {self.s['n_particles']} particles at {self.s['pour_rate']:g} kg/s (a layer of "
@@ -637,6 +643,13 @@ class SiloScene(Scene):
                           f"opens at {self.s['gate_time']:g} s" if self.s["gate"] == "time" else
                           f"opens when settled (kinetic energy per particle < {self.s['settle_energy']:g} J) "
                           f"from {self.s['gate_time']:g} s")
+
+    def _fill_friction(self) -> None:
+        """The fill's friction: none (``frictionless_fill``) or ``fill_friction`` between particles."""
+        if self.s["frictionless_fill"]:
+            self.sim.system.set_friction(False)
+        elif self.s["fill_friction"] >= 0.0:
+            self.sim.system.set_friction(False, pp_mu=self.s["fill_friction"])
 
     def _pour(self, t: float) -> None:
         """Insert the pour layers that are due (each only if it overlaps nothing)."""
@@ -750,7 +763,7 @@ class SiloScene(Scene):
         self.fill_measure(sys_.pos, sys_.mass)
         self.fill["kinetic_energy_per_particle"] = ke
         sys_.set_wall_active("gate", False)
-        if self.s["frictionless_fill"]:
+        if self.s["frictionless_fill"] or self.s["fill_friction"] >= 0.0:
             sys_.set_friction(True)
         self.gate_open_time = t
         self.k_field = 0
@@ -867,8 +880,8 @@ class SiloScene(Scene):
         self.bodies_out = int(d.get("bodies_out", 0))
         self.layers_done = int(d["layers_done"])
         self.field.set_state(d["field"])
-        if self.s["frictionless_fill"] and not self.gate_open:
-            self.sim.system.set_friction(False)
+        if not self.gate_open:
+            self._fill_friction()
         for k, v in d["fill"].items():
             self.fill[k] = np.asarray(v, float) if k.startswith("box") else float(v)
 

@@ -158,3 +158,24 @@ def test_fill_lattice_is_free_of_overlaps_and_inside():
     assert pos[:, 2].min() > r and pos[:, 2].max() < 0.012 - r
     assert pos[:, 1].min() > 0.01 + r
     np.testing.assert_array_equal(pos, fill_lattice(0.05, 0.012, 0.01, 0.0038, 200, 0.12, 0.08, seed=4))
+
+
+def test_fill_friction_sets_only_the_pair_sliding_friction_during_the_fill():
+    from cfddem.particles import LinearContact, ParticleSystem, PlaneWall
+    from cfddem.particles.contact import P_MU, P_MUR
+
+    pp = LinearContact(k_n=1000.0, e_n=0.5, e_t=0.5, mu=0.35, mu_r=0.1)
+    pw = LinearContact(k_n=1000.0, e_n=0.5, e_t=0.5, mu=0.17, mu_r=0.1)
+    s = ParticleSystem(pp=pp, walls=[PlaneWall(contact=pw, point=(0, 0, 0), normal=(0, 1, 0))], dt=1e-5)
+    s.set_friction(False, pp_mu=0.15)  # the thesis's fill
+    assert s._pp_params[0, P_MU] == 0.15 and s._pp_params[0, P_MUR] == 0.1
+    assert s._wpar[0, P_MU] == 0.17 and s._wpar[0, P_MUR] == 0.1
+    s.set_friction(False)  # frictionless: everything off
+    assert s._pp_params[0, [P_MU, P_MUR]].tolist() == [0.0, 0.0] and s._wpar[0, P_MU] == 0.0
+    s.set_friction(True)  # back to the built values
+    assert s._pp_params[0, [P_MU, P_MUR]].tolist() == [0.35, 0.1] and s._wpar[0, [P_MU, P_MUR]].tolist() == [0.17, 0.1]
+    with pytest.raises(CaseError, match="silo.fill_friction"):
+        case_with(fill_friction=0.15, frictionless_fill=True)
+    with pytest.raises(CaseError, match="silo.fill_friction"):
+        case_with(fill_friction=-0.5)
+    assert case_with(fill_friction=0.15).resolved["silo"]["fill_friction"] == 0.15
