@@ -333,7 +333,9 @@ def describe_fill(case, phi: float = 0.6) -> list[str]:
     for P in geo.internals.bodies.values():  # less the internals' own width at each height
         xs = [np.interp(y, *sorted_edge(P[k], P[(k + 1) % 4]), left=np.nan, right=np.nan) for k in range(4)]
         xs = np.array(xs)
-        width -= np.where(np.isfinite(xs).sum(axis=0) >= 2, np.nanmax(xs, axis=0) - np.nanmin(xs, axis=0), 0.0)
+        ok = np.isfinite(xs)
+        span = np.where(ok, xs, -np.inf).max(axis=0) - np.where(ok, xs, np.inf).min(axis=0)
+        width -= np.where(ok.sum(axis=0) >= 2, span, 0.0)
     vol = np.concatenate([[0.0], np.cumsum(0.5 * (width[1:] + width[:-1]) * np.diff(y))]) * geo.L
     n = s["n_particles"]
     h = float(np.interp(n * v / phi, vol, y))
