@@ -602,7 +602,7 @@ class SiloScene(Scene):
         self.field = VelocityField(0.0, self.g.W, -self.g.lip, self.g.H, cell)
         self.probe = (ChannelProbe(self.g.internals, self.g.xc, 0.0, self.g.W, -self.g.lip, self.g.H, cell,
                                    s["fit_range"], s["centreline_heights"])
-                      if self.g.internals or s["centreline_heights"] else None)
+                      if self.g.internals else None)
         self.k_field = 0
         self.n_inserted = 0  # lattice sites filled (spheres, or pellets with particles.clump)
         self.spheres_inserted = 0  # spheres inserted (pellets: their member spheres)

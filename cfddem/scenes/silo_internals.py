@@ -83,8 +83,9 @@ KEYS = {
                               "of the hopper height", lo=0.0, hi=1.0, lo_open=True, hi_open=True),
     "insert_thickness": _nonneg(0.0, "m", "thickness of the insert plates and the tube walls (0: "
                                 "particles.diameter)"),
-    "centreline_heights": Key("floats", [], "m", "heights above the outlet where the steady centreline speed is "
-                              "reported (/measurements/silo/centreline; default none)", lo=0.0),
+    "centreline_heights": Key("floats", [0.1, 0.4, 0.7], "m", "with internals: heights above the outlet where the "
+                              "steady centreline speed is reported (/measurements/silo/centreline; NaN above the "
+                              "field); default the thesis's 100, 400 and 700 mm", lo=0.0),
     GROUP: wall_override("insert plates and blending tube"),
 }
 
