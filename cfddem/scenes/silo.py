@@ -21,6 +21,9 @@ Walls (all bounded rectangles, one-sided, named; each group has its own contact 
   behind its face back through it);
 - ``gate``: a rectangle at y = -lip (normal +y) closing the slot; ``system.set_wall_active("gate",
   False)`` opens it.
+- the multi-flow blender's internals (``silo.tube``, ``silo.insert``): closed thin bodies of
+  rectangles, contact group ``[silo.internals]`` (:mod:`cfddem.scenes.silo_internals`); the fill
+  lattice then starts above them.
 
 Seams: walls that meet are extended past the seam by one particle diameter (on the side away
 from the particles), so no particle can leak through a corner; the slot edge is where the
@@ -408,6 +411,16 @@ def container_walls_toml(case, paths: dict, units: str) -> str:
     return "\n".join(out)
 
 
+def load_silo_case(path, overrides=()):
+    """A silo case with command-line overrides (``KEY=VALUE``), or a one-line CaseError."""
+    from ..config import load_case
+
+    case = load_case(path, overrides=list(overrides))
+    if case.geometry.type != "silo":
+        raise CaseError("geometry.type", f"{case.geometry.type!r}: needs a silo case")
+    return case
+
+
 def main(argv=None) -> int:
     """``python -m cfddem.scenes.silo CASE --write-stl DIR [--units mm] [--max-edge M] [--set K=V]...``:
     write the analytic container of a silo case as STL files (one per contact group) and print
@@ -415,7 +428,6 @@ def main(argv=None) -> int:
     import argparse
     import sys
 
-    from ..config import load_case
     from ..particles.mesh import UNITS
 
     ap = argparse.ArgumentParser(prog="python -m cfddem.scenes.silo",
@@ -428,9 +440,7 @@ def main(argv=None) -> int:
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     args = ap.parse_args(argv)
     try:
-        case = load_case(args.case, overrides=args.overrides)
-        if case.geometry.type != "silo":
-            raise CaseError("geometry.type", f"{case.geometry.type!r}: needs a silo case")
+        case = load_silo_case(args.case, args.overrides)
         paths = write_container_stl(case, args.write_stl, args.units, args.max_edge)
     except CaseError as e:
         print(f"cfddem: error: {e}", file=sys.stderr)

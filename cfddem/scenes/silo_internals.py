@@ -460,7 +460,7 @@ def main(argv=None) -> int:
     import argparse
     import sys
 
-    from ..config import load_case
+    from .silo import load_silo_case
 
     ap = argparse.ArgumentParser(prog="python -m cfddem.scenes.silo_internals",
                                  description="draw the multi-flow blender's three inserts and print their dimensions")
@@ -469,10 +469,7 @@ def main(argv=None) -> int:
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     args = ap.parse_args(argv)
     try:
-        case = load_case(args.case, overrides=args.overrides)
-        if case.geometry.type != "silo":
-            raise CaseError("geometry.type", f"{case.geometry.type!r}: needs a silo case")
-        texts = draw(case, args.draw)
+        texts = draw(load_silo_case(args.case, args.overrides), args.draw)
     except CaseError as e:
         print(f"cfddem: error: {e}", file=sys.stderr)
         return 2
