@@ -450,7 +450,7 @@ def draw(case, out_png, inserts=tuple(INSERT_RATIOS)) -> list[list[str]]:
         ax.set_ylabel("y above the outlet (mm)")
         texts.append(g.describe())
     fig.tight_layout()
-    fig.savefig(out_png, dpi=110)
+    fig.savefig(out_png, dpi=110, bbox_inches="tight")
     plt.close(fig)
     return texts
 
