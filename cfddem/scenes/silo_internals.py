@@ -128,8 +128,9 @@ class Internals:
 
     @classmethod
     def from_silo(cls, silo: dict, d: float, d_site: float) -> "Internals | None":
-        """The internals of a resolved ``[silo]`` section (None when it has none)."""
-        if silo["insert"] == "none" and not silo["tube"]:
+        """The internals of a resolved ``[silo]`` section (None when it has none, or when the dict
+        lacks the internals' keys)."""
+        if silo.get("insert", "none") == "none" and not silo.get("tube", False):
             return None
         return cls(silo["width"], silo["outlet_width"], math.radians(silo["hopper_angle_deg"]), silo["insert"],
                    silo["tube"], silo["tube_width"], silo["tube_inlet"], silo["insert_outlet_level"],
