@@ -221,3 +221,41 @@ def fit_beverloo(b, W, rho_b: float, L: float, d: float, g: float = 9.81) -> dic
     rel = (beverloo_rate(b, C, k, rho_b, L, d, g) - W) / W
     return {"C": float(C), "k": float(k), "C_err": sC, "k_err": sk,
             "rms_rel_residual": float(np.sqrt(np.mean(rel ** 2)))}
+
+
+def channel_velocities(field: VelocityField, row: int, channels: dict) -> dict:
+    """Mean v_y of each channel in row ``row`` of a time-averaged :class:`VelocityField`:
+    ``channels`` {name: [(x_lo, x_hi), ...]} (a channel may be several intervals, e.g. the left
+    and right exterior channels); a cell belongs to a channel when its centre lies strictly
+    inside one of its intervals.  Per channel the particle-weighted mean sum(v_y) / count over its
+    cells; the cross-sectional mean the same over the cells of all channels; ``relative`` =
+    channel mean / cross-sectional mean (NaN where no particle was sampled).  Returns
+    {name: {"mean_vy", "relative", "cells", "count"}, "cross_section_mean_vy": ...}."""
+    x = field.x
+    tot_v = tot_n = 0.0
+    out: dict = {}
+    for name, spans in channels.items():
+        sel = np.zeros(field.nx, bool)
+        for a, b in spans:
+            sel |= (x > a) & (x < b)
+        v = float(field.sum_vy[row, sel].sum())
+        n = float(field.count[row, sel].sum())
+        tot_v += v
+        tot_n += n
+        out[name] = {"mean_vy": v / n if n > 0 else math.nan, "cells": int(sel.sum()), "count": n}
+    mean = tot_v / tot_n if tot_n > 0 else math.nan
+    for name in channels:
+        out[name]["relative"] = out[name]["mean_vy"] / mean if mean != 0 else math.nan
+    out["cross_section_mean_vy"] = mean
+    return out
+
+
+def centreline_speeds(field: VelocityField, xc: float, heights) -> np.ndarray:
+    """Downward centreline speed -v_y of a time-averaged field at each height: the per-row
+    centreline speed of :func:`channel_boundary` interpolated linearly between row centres (NaN
+    outside the field or where a row has no downward flow)."""
+    heights = np.asarray(heights, float)
+    if not heights.size:
+        return np.zeros(0)
+    cs = channel_boundary(field.mean()[1], field.x, xc)["centre_speed"]
+    return np.interp(heights, field.y, cs, left=math.nan, right=math.nan)

@@ -21,6 +21,9 @@ Walls (all bounded rectangles, one-sided, named; each group has its own contact 
   behind its face back through it);
 - ``gate``: a rectangle at y = -lip (normal +y) closing the slot; ``system.set_wall_active("gate",
   False)`` opens it.
+- the multi-flow blender's internals (``silo.tube``, ``silo.insert``): closed thin bodies of
+  rectangles, contact group ``[silo.internals]`` (:mod:`cfddem.scenes.silo_internals`); the fill
+  lattice then starts above them.
 
 Seams: walls that meet are extended past the seam by one particle diameter (on the side away
 from the particles), so no particle can leak through a corner; the slot edge is where the
@@ -81,6 +84,8 @@ from ..errors import CaseError
 from ..measure.silo import VelocityField, bulk_density, channel_boundary, fit_mass_flow, surface_height
 from ..particles.contact import check_contact_values
 from . import Scene
+from .silo_internals import GROUP as INTERNALS_GROUP, KEYS as INTERNALS_KEYS, WALL_NAMES as INTERNALS_WALLS
+from .silo_internals import ChannelProbe, Internals, check_internals
 from ..schema import Key, wall_override
 from ..schema import nonneg as _nonneg
 from ..schema import number as _f
@@ -89,6 +94,7 @@ from ..schema import positive as _pos
 WALL_GROUPS = {"front": "front_back", "back": "front_back", "left": "sides", "right": "sides",
                "bottom_left": "bottom", "bottom_right": "bottom", "hopper_left": "bottom",
                "hopper_right": "bottom", "lip_left": "bottom", "lip_right": "bottom", "gate": "gate_wall"}
+WALL_GROUPS.update(dict.fromkeys(INTERNALS_WALLS, INTERNALS_GROUP))  # blender internals: silo_internals.py
 #: the contact groups of the container (every wall but the gate): one mesh wall each with silo.walls = "mesh"
 CONTAINER_GROUPS = ("front_back", "sides", "bottom")
 
@@ -119,8 +125,10 @@ class SiloGeometry:
         # top of the region where an arch over the outlet is looked for: 2 d (flat); in a hopper up
         # to where it is 4 d wider than the slot, 2 d (1 + tan a) (an arch spans the converging walls)
         self.y_arch = 2.0 * d * (1.0 + (math.tan(self.angle) if self.angle > 0 else 0.0))
+        self.internals = Internals.from_silo(silo, d, self.d_site)  # blender tube and insert, or None
+        self.y_fill = max(self.y_h, self.internals.top if self.internals else self.y_h)  # the fill starts above them
         self.removal_depth = silo["removal_depth"] or (self.lip + 1.5 * d)
-        self.lattice = fill_lattice(self.W, self.L, self.y_h, self.d_site, silo["n_particles"], silo["lattice_gap"],
+        self.lattice = fill_lattice(self.W, self.L, self.y_fill, self.d_site, silo["n_particles"], silo["lattice_gap"],
                                     silo["lattice_jitter"], seed)
         top = float(self.lattice[:, 1].max()) + 0.5 * self.d_site
         self.H = silo["height"] or (top + 2 * d)
@@ -243,6 +251,7 @@ SILO_KEYS = {
     "sides": wall_override("side walls"),
     "bottom": wall_override("bottom plates or hopper walls, and the slot lips"),
     "gate_wall": wall_override("gate"),
+    **INTERNALS_KEYS,
 }
 
 
@@ -297,6 +306,7 @@ def check_silo_case(r: dict) -> None:
             if given:
                 raise CaseError(f"silo.{grp}.{given[0]}", "with silo.walls = 'mesh' the container's contact keys "
                                                           "belong to its [[geometry.walls]] mesh walls")
+    check_internals(r, d, d_site, s["height"] or None)
     if s["height"]:
         g = SiloGeometry(s, d, r["particles"]["seed"], r["particles"]["clump"], r["particles"]["density"],
                          r["particles"]["clump_spheres"])
@@ -360,7 +370,9 @@ def silo_walls(case, container: bool | None = None, silo: dict | None = None):
     add("lip_left", (x_edge, -0.5 * g.lip, 0.5 * L), ex, ey, 0.5 * g.lip, 0.5 * L + e)
     add("lip_right", (W - x_edge, -0.5 * g.lip, 0.5 * L), -ex, ey, 0.5 * g.lip, 0.5 * L + e)
     add("gate", (xc, -g.lip, 0.5 * L), ey, ex, 0.5 * b + e, 0.5 * L + e)
-    return walls if container else [w for w in walls if w.name == "gate"]
+    for face in (g.internals.rectangles(L, e) if g.internals else ()):
+        add(*face)
+    return walls if container else [w for w in walls if WALL_GROUPS[w.name] not in CONTAINER_GROUPS]
 
 
 def container_meshes(case, max_edge: float = 0.0) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -424,6 +436,16 @@ def container_walls_toml(case, paths: dict, units: str) -> str:
     return "\n".join(out)
 
 
+def load_silo_case(path, overrides=()):
+    """A silo case with command-line overrides (``KEY=VALUE``), or a one-line CaseError."""
+    from ..config import load_case
+
+    case = load_case(path, overrides=list(overrides))
+    if case.geometry.type != "silo":
+        raise CaseError("geometry.type", f"{case.geometry.type!r}: needs a silo case")
+    return case
+
+
 def main(argv=None) -> int:
     """``python -m cfddem.scenes.silo CASE --write-stl DIR [--units mm] [--max-edge M] [--set K=V]...``:
     write the analytic container of a silo case as STL files (one per contact group) and print
@@ -431,7 +453,6 @@ def main(argv=None) -> int:
     import argparse
     import sys
 
-    from ..config import load_case
     from ..particles.mesh import UNITS
 
     ap = argparse.ArgumentParser(prog="python -m cfddem.scenes.silo",
@@ -444,9 +465,7 @@ def main(argv=None) -> int:
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     args = ap.parse_args(argv)
     try:
-        case = load_case(args.case, overrides=args.overrides)
-        if case.geometry.type != "silo":
-            raise CaseError("geometry.type", f"{case.geometry.type!r}: needs a silo case")
+        case = load_silo_case(args.case, args.overrides)
         paths = write_container_stl(case, args.write_stl, args.units, args.max_edge)
     except CaseError as e:
         print(f"cfddem: error: {e}", file=sys.stderr)
@@ -563,10 +582,11 @@ class SiloScene(Scene):
 
     @classmethod
     def describe(cls, case) -> list[str]:
-        """With ``silo.walls = "mesh"``: whether the mesh walls' bounds cover the silo's box."""
-        if case.resolved["silo"]["walls"] != "mesh":
-            return []
-        return [mesh_cover_line(case)]
+        """With ``silo.walls = "mesh"``: whether the mesh walls' bounds cover the silo's box; the
+        blender's internals and fill (:func:`~cfddem.scenes.silo_internals.describe_fill`)."""
+        from .silo_internals import describe_fill
+
+        return ([mesh_cover_line(case)] if case.resolved["silo"]["walls"] == "mesh" else []) + describe_fill(case)
 
     @classmethod
     def has_particles(cls, case) -> bool:
@@ -615,6 +635,9 @@ class SiloScene(Scene):
         self.ended = ""
         cell = s["field_cell"] or 2 * self.g.d
         self.field = VelocityField(0.0, self.g.W, -self.g.lip, self.g.H, cell)
+        self.probe = (ChannelProbe(self.g.internals, self.g.xc, 0.0, self.g.W, -self.g.lip, self.g.H, cell,
+                                   s["fit_range"], s["centreline_heights"])
+                      if self.g.internals else None)
         self.k_field = 0
         self.n_inserted = 0  # lattice sites filled (spheres, or pellets with particles.clump)
         self.spheres_inserted = 0  # spheres inserted (pellets: their member spheres)
@@ -718,6 +741,8 @@ class SiloScene(Scene):
         if self.gate_open and not self.ended and t >= self._next_field_time() - half:
             if sys_.n:
                 self.field.sample(sys_.pos, sys_.vel)
+                if self.probe:
+                    self.probe.sample(t, sys_.pos, sys_.vel, sim.counters["mass_out"])
             while self._next_field_time() <= t + half:
                 self.k_field += 1
         if t < self.k_check * self.check_dt - half:
@@ -765,6 +790,8 @@ class SiloScene(Scene):
         sys_.set_wall_active("gate", False)
         if self.s["frictionless_fill"] or self.s["fill_friction"] >= 0.0:
             sys_.set_friction(True)
+        if self.probe:
+            self.probe.open(float(sys_.mass.sum()))
         self.gate_open_time = t
         self.k_field = 0
         self.rec_t.append(t)
@@ -786,7 +813,7 @@ class SiloScene(Scene):
         """Fill height and bulk density of a packing (the box of the module doc), as a dict."""
         d, g = self.g.d, self.g
         h = surface_height(pos, 0.0, g.W, 2 * d)
-        lo = np.array([3 * d, g.y_h + 3 * d, 0.0])
+        lo = np.array([3 * d, g.y_fill + 3 * d, 0.0])
         hi = np.array([g.W - 3 * d, h - 3 * d, g.L])
         rho, k = bulk_density(pos, mass, lo, hi) if hi[1] > lo[1] else (math.nan, 0)
         return dict(bulk_density=rho, fill_height=h, n_particles=len(pos), n_in_box=k, box_lo=lo, box_hi=hi)
@@ -850,6 +877,8 @@ class SiloScene(Scene):
                        "discharge_duration": "s from the gate opening to the removal of the last discharged "
                                              "particle (NaN: none left, or the run ended before the discharge did)"},
         }
+        if self.probe:
+            silo.update(self.probe.measurements())
         arrays = {"mass_flow_rate": fit["rate"], "bulk_density": self.fill["bulk_density"],
                   "clogged": np.int64(1 if self.clogged else 0), "silo": silo,
                   "@attrs:mass_flow_rate": {"unit": "kg/s"}, "@attrs:bulk_density": {"unit": "kg/m3"},
@@ -863,7 +892,8 @@ class SiloScene(Scene):
                 "k_field": np.int64(self.k_field), "field": self.field.get_state(),
                 "n_inserted": np.int64(self.n_inserted), "layers_done": np.int64(self.layers_done),
                 "spheres_inserted": np.int64(self.spheres_inserted), "bodies_out": np.int64(self.bodies_out),
-                "fill": {k: (np.asarray(v) if not isinstance(v, (int, float)) else v) for k, v in self.fill.items()}}
+                "fill": {k: (np.asarray(v) if not isinstance(v, (int, float)) else v) for k, v in self.fill.items()},
+                **({"probe": self.probe.get_state()} if self.probe else {})}
 
     def set_state(self, d: dict) -> None:
         self.k_check = int(d["k_check"])
@@ -882,6 +912,8 @@ class SiloScene(Scene):
         self.field.set_state(d["field"])
         if not self.gate_open:
             self._fill_friction()
+        if self.probe:
+            self.probe.set_state(d["probe"])
         for k, v in d["fill"].items():
             self.fill[k] = np.asarray(v, float) if k.startswith("box") else float(v)
 
