@@ -104,8 +104,10 @@ class ContactLaw:
 
     @classmethod
     def from_table(cls, params: dict) -> "ContactLaw":
-        """The law from a contact table (``contact.particle_wall`` with a wall's overrides, ...)."""
-        return cls(**{k.name: params[k.name] for k in cls.KEYS})
+        """The law from a contact table (``contact.particle_wall`` with a wall's overrides, ...);
+        a key the table lacks takes the key's particle-particle default (a resolved case holds
+        them all; this serves tables written before a key existed, e.g. ``k_t_ratio``)."""
+        return cls(**{k.name: params.get(k.name, k.default) for k in cls.KEYS})
 
     @classmethod
     def model_doc(cls) -> str:
