@@ -213,6 +213,18 @@ def write_gravity_outputs(runs: list[dict], out) -> list[Path]:
     return [out / "gravity_scaling.csv", out / "gravity_scaling.md", _chart(runs, table, out / "gravity_scaling.png")]
 
 
+def _against_g(ax, g0: float, title: str, log_y: bool) -> None:
+    """Log g axis, values relative to those at the lowest g ``g0``."""
+    ax.set_xscale("log")
+    if log_y:
+        ax.set_yscale("log")
+    ax.set_xlabel("g (m/s$^2$)")
+    ax.set_ylabel(f"value / value at g = {g0:g}")
+    ax.set_title(title)
+    ax.legend(fontsize=7)
+    ax.grid(alpha=0.3, which="both")
+
+
 def _chart(runs: list[dict], table: list[dict], path: Path) -> Path:
     import matplotlib
 
@@ -229,12 +241,7 @@ def _chart(runs: list[dict], table: list[dict], path: Path) -> Path:
         e = np.array([0.5 * r[k + "_spread"] for r in table])
         a.errorbar(gs, v / v[0], yerr=np.nan_to_num(e / v[0]), marker=mk, capsize=3, label=lab)
     a.axhline(1.0, color="k", lw=0.8)
-    a.set_xscale("log")
-    a.set_xlabel("g (m/s$^2$)")
-    a.set_ylabel(f"value / value at g = {gs[0]:g}")
-    a.set_title("(a) should be constant if the flow scales")
-    a.legend(fontsize=8)
-    a.grid(alpha=0.3, which="both")
+    _against_g(a, gs[0], "(a) should be constant if the flow scales", log_y=False)
     # (b) what should not scale, on log axes, each over its value at the lowest g
     b = ax[0, 1]
     for k, lab, mk in (("max_overlap", "max overlap / R (fill)", "o"), ("mean_overlap", "mean overlap / R (fill)", "s"),
@@ -247,13 +254,7 @@ def _chart(runs: list[dict], table: list[dict], path: Path) -> Path:
     b.plot(gg, (gg / gs[0]) ** (2 / 3), "k:", lw=1, label="g$^{2/3}$ (Hertz overlap)")
     b.plot(gg, (gg / gs[0]) ** -0.5, "k--", lw=1, label="g$^{-1/2}$")
     b.plot(gg, (gg / gs[0]) ** 0.4, "k-.", lw=1, label="g$^{2/5}$")
-    b.set_xscale("log")
-    b.set_yscale("log")
-    b.set_xlabel("g (m/s$^2$)")
-    b.set_ylabel(f"value / value at g = {gs[0]:g}")
-    b.set_title("(b) should not scale")
-    b.legend(fontsize=7)
-    b.grid(alpha=0.3, which="both")
+    _against_g(b, gs[0], "(b) should not scale", log_y=True)
     # (c) velocity profiles vy / sqrt(g d), one line style per height, one colour per g
     c = ax[1, 0]
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
