@@ -30,6 +30,7 @@ import math
 import numpy as np
 from scipy.integrate import cumulative_trapezoid, trapezoid
 from scipy.interpolate import RegularGridInterpolator
+from scipy.optimize import isotonic_regression
 
 from .silo import channel_boundary
 
@@ -75,6 +76,24 @@ def outflow_concentration(t_cross, mass, tracer, dt: float, t_start: float = 0.0
 
 
 # ----------------------------------------------------------------- variance reduction
+def block_concentration(time, mass_by_label, k: int, tracer: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Tracer mass fraction of the outflow in blocks of ``k`` record intervals: ``time`` (n,)
+    interval ends, ``mass_by_label`` (n, labels) the mass of each label that crossed per
+    interval.  Returns the blocks' mean time and their concentration (NaN where nothing crossed);
+    a last incomplete block is left out.  With few bodies per interval the concentration of
+    one interval is 0 or 1 more often than not: blocks give a series that can be differentiated
+    (a step response) or read by eye."""
+    t = np.asarray(time, float).ravel()
+    M = np.asarray(mass_by_label, float).reshape(len(t), -1)
+    k = max(1, int(k))
+    nb = len(t) // k
+    Mb = M[: nb * k].reshape(nb, k, -1).sum(axis=1)
+    tot = Mb.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c = np.where(tot > 0, Mb[:, tracer] / np.where(tot > 0, tot, 1.0), np.nan)
+    return t[: nb * k].reshape(nb, k).mean(axis=1), c
+
+
 def variance_reduction_ratio(c_in, c_out) -> float:
     """VRR = var(c_in) / var(c_out) (population variances, ddof 0) over the intervals where
     both series are finite: an interval without outflow (NaN) is left out of both, so the two
@@ -285,20 +304,25 @@ def rtd_from_pulse(time, c, t_mean: float | None = None, t_inject: float = 0.0,
 
 
 def rtd_from_step(time, c, c_step: float = 1.0, c_before: float = 0.0, t_mean: float | None = None,
-                  t_inject: float = 0.0, t_d: float | None = None) -> dict:
+                  t_inject: float = 0.0, t_d: float | None = None, monotone: bool = True) -> dict:
     """RTD from the outflow concentration after a step of the input from ``c_before`` to
     ``c_step`` at ``t_inject``: F(theta) = (c - c_before) / (c_step - c_before) (the normalised
     outflow concentration), E = dF/dtheta (``np.gradient``, second order), theta =
     (t - t_inject) / t_mean.  NaN intervals are filled by linear interpolation.  t_mean defaults
     to int (1 - F) dt from t_inject (where F = 0) over the record (the record must reach F = 1
     for that).  The moments are
-    those of E (:func:`rtd_stats`)."""
+    those of E (:func:`rtd_stats`).  ``monotone``: F is replaced by its least-squares
+    non-decreasing fit in [0, 1] (``scipy.optimize.isotonic_regression``) before E is taken:
+    a cumulative distribution cannot fall, and the counting noise of a particle-resolved
+    response would otherwise give an E with negative lobes (whose clipping inflates it)."""
     if c_step == c_before:
         raise ValueError("a step needs c_step != c_before")
     t = np.asarray(time, float).ravel() - t_inject
     keep = t >= 0
     t = t[keep]
     F = (_fill_gaps(t, np.asarray(c, float).ravel()[keep]) - c_before) / (c_step - c_before)
+    if monotone and len(F) > 1:
+        F = np.clip(isotonic_regression(F).x, 0.0, 1.0)
     if t_mean is None:  # F = 0 at the injection itself (no residence time is zero)
         t0 = [0.0] if t[0] > 0 else []
         t_mean = float(trapezoid(1.0 - np.concatenate([t0, F]), np.concatenate([t0, t])))

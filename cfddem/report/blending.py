@@ -109,21 +109,19 @@ def _xaxis(r: dict):
 
 
 def _blocks(r: dict, x):
-    """Tracer mass fraction of the outflow in blocks of about t_mean / 20 (from the mass per
-    label), at the blocks' mean x; (None, None) without the per-label masses or t_mean."""
-    M = r["mass_by_label"]
-    t = r["time"]
+    """Tracer mass fraction of the outflow in blocks of about t_mean / 20
+    (:func:`cfddem.measure.blending.block_concentration`), at the blocks' mean x; (None, None)
+    without the per-label masses or t_mean."""
+    from ..measure.blending import block_concentration
+
+    M, t = r["mass_by_label"], r["time"]
     if M.ndim != 2 or M.shape[0] != len(t) or M.shape[1] < 2 or len(t) < 4 or not (r["t_mean"] > 0):
         return None, None
-    dt = float(np.median(np.diff(t)))
-    k = max(1, int(round(0.05 * r["t_mean"] / dt)))
-    nb = len(t) // k
-    if nb < 2:
+    k = max(1, int(round(0.05 * r["t_mean"] / float(np.median(np.diff(t))))))
+    if len(t) // k < 2:
         return None, None
-    Mb = M[: nb * k].reshape(nb, k, -1).sum(axis=1)
-    tot = Mb.sum(axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        cb = np.where(tot > 0, Mb[:, 1] / np.where(tot > 0, tot, 1.0), np.nan)
+    _, cb = block_concentration(t, M, k)
+    nb = len(cb)
     return np.asarray(x[: nb * k], float).reshape(nb, k).mean(axis=1), cb
 
 
