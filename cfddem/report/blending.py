@@ -53,8 +53,50 @@ def _s(x) -> str:
     return str(x)
 
 
-def read_blend_run(run_dir) -> dict | None:
-    """The blending measurements of one run folder (None without ``results.h5``)."""
+def _silo_rtd(m: dict, release_fraction: float, h5) -> tuple[dict, str, float]:
+    """A run without an RTD (a silo discharge): virtual tracers released on a line at
+    ``release_fraction`` of the fill height, flux-weighted, through the silo's time-averaged field
+    to the outlet plane, t_mean = mass present at the gate opening (``/series/mass_present``) /
+    steady mass flow rate; and its flow
+    pattern.  ({} , "", nan) where the run has no field or flow rate."""
+    from ..measure import blending as bl
+
+    silo = m.get("silo", {})
+    f = silo.get("field")
+    rate = _f(m.get("mass_flow_rate", math.nan))
+    fill = _f(silo.get("fill_height", math.nan))
+    if not isinstance(f, dict) or not np.isfinite(np.asarray(f.get("vy", [np.nan]), float)).any():
+        return {}, "", math.nan
+    x, y, vx, vy = (np.asarray(f[k], float) for k in ("x", "y", "vx", "vy"))
+    pattern = ""
+    try:
+        pattern = bl.classify_flow_pattern(x, y, vy, fill_height=fill if math.isfinite(fill) else None)["pattern"]
+    except ValueError:
+        pass
+    from ..io.results import read_series
+
+    ser = read_series(h5)
+    t_gate = _f(silo.get("gate_open_time", math.nan))
+    content = math.nan
+    if "mass_present" in ser and len(ser["time"]) and math.isfinite(t_gate):
+        content = float(ser["mass_present"][int(np.argmin(np.abs(ser["time"] - t_gate)))])
+    t_mean = content / rate if math.isfinite(content) and rate > 0 else math.nan
+    if not (math.isfinite(fill) and math.isfinite(t_mean)):
+        return {}, pattern, t_mean
+    try:
+        start = bl.release_line(x, release_fraction * fill, 400)
+        v = bl.virtual_tracer_rtd(x, y, vx, vy, start, 0.0, t_mean=t_mean)
+    except ValueError:
+        return {}, pattern, t_mean
+    return {"theta": v["theta"], "E": v["E"], "F": v["F"], "first_appearance": v["theta_s"], "peak": v["peak"],
+            "mean": v["mean"], "variance": v["variance"],
+            "n_stuck": v["n_stuck"], "n_arrived": v["n_arrived"]}, pattern, t_mean
+
+
+def read_blend_run(run_dir, release_fraction: float = 0.9) -> dict | None:
+    """The blending measurements of one run folder (None without ``results.h5``).  A silo run
+    without an RTD of its own gets one from virtual tracers released at ``release_fraction`` of
+    its fill height (:func:`_silo_rtd`)."""
     from ..io.results import read_measurements, read_metadata
 
     run_dir = Path(run_dir)
@@ -80,11 +122,23 @@ def read_blend_run(run_dir) -> dict | None:
     r["vrr_nr"] = np.asarray(b.get("vrr_recirculations", []), float)
     r["vrr_by_nr"] = np.asarray(b.get("vrr_by_recirculation", []), float)
     rtd = m.get("rtd", {})
+    r["rtd_note"] = ""
+    if not rtd:
+        rtd, pattern, t_mean = _silo_rtd(m, release_fraction, h5)
+        if pattern and "flow_pattern" not in m:
+            m["flow_pattern"] = pattern
+        if not math.isfinite(r["t_mean"]):
+            r["t_mean"] = t_mean
+        if rtd:
+            r["rtd_note"] = (f"virtual tracers from {release_fraction:g} of the fill height "
+                             f"({int(rtd['n_stuck'])} stuck of {int(rtd['n_stuck']) + int(rtd['n_arrived'])} kept)")
     r["theta"] = np.asarray(rtd.get("theta", []), float)
     r["E"] = np.asarray(rtd.get("E", []), float)
     r["F"] = np.asarray(rtd.get("F", []), float)
     r["rtd_first"] = _f(rtd.get("first_appearance", math.nan))
     r["rtd_peak"] = _f(rtd.get("peak", math.nan))
+    r["rtd_mean"] = _f(rtd.get("mean", math.nan))
+    r["rtd_var"] = _f(rtd.get("variance", math.nan))
     r["flow_pattern"] = _s(m["flow_pattern"]) if "flow_pattern" in m else ""
     silo = m.get("silo", {})
     r["field"] = silo.get("field")
@@ -248,9 +302,10 @@ def blending_report(sweep_dirs, out=None) -> dict:
     out = Path(out) if out else sweep_dir / "blending_report"
     runs, table = [], []
     for d in dirs:
-        for row in _read_rows(d):
-            r = read_blend_run(d / row["name"])
-            name = row["name"] if len(dirs) == 1 else f"{d.name}/{row['name']}"
+        rows = [{"name": "", "status": "done"}] if (d / "results.h5").exists() else _read_rows(d)
+        for row in rows:
+            r = read_blend_run(d / row["name"] if row["name"] else d)
+            name = (row["name"] or d.name) if len(dirs) == 1 or not row["name"] else f"{d.name}/{row['name']}"
             entry = {"name": name, "status": row.get("status", "")}
             if r is not None:
                 r["name"] = name
@@ -258,7 +313,9 @@ def blending_report(sweep_dirs, out=None) -> dict:
                 n_r_end = float(r["n_r"][-1]) if r["n_r"] is not None and len(r["n_r"]) else math.nan
                 entry.update(flow_pattern=r["flow_pattern"], vrr=r["vrr"], t_mean_s=r["t_mean"],
                              recirculations=n_r_end, rtd_first_theta=r["rtd_first"], rtd_peak_theta=r["rtd_peak"],
-                             n_particles=r["n_particles"], has_blending=r["has_blending"], **_cost_row(r))
+                             rtd_mean_theta=r["rtd_mean"], rtd_variance=r["rtd_var"],
+                             n_particles=r["n_particles"], has_blending=r["has_blending"], rtd_note=r["rtd_note"],
+                             **_cost_row(r))
                 for k, v in zip(r["vrr_nr"], r["vrr_by_nr"]):
                     entry[f"vrr_after_{int(k)}"] = float(v)
             table.append(entry)
@@ -269,17 +326,19 @@ def blending_report(sweep_dirs, out=None) -> dict:
     nmax = max([int(k.rsplit("_", 1)[1]) for e in table for k in e if k.startswith("vrr_after_")], default=0)
     lines = ["# Blending study", "", "Sweep folder(s): " + ", ".join(f"`{d}`" for d in dirs), "",
              "| variant | status | flow pattern | VRR | " + "".join(f"VRR after {k} | " for k in range(1, nmax + 1))
-             + "t_mean (s) | N_r reached | RTD first (theta) | "
-             "RTD peak (theta) | particles | simulated (s) | wall (s) | h per simulated s |",
-             "|---|---|---|---|" + "---|" * nmax + "---|---|---|---|---|---|---|---|"]
+             + "t_mean (s) | N_r reached | RTD first (theta) | RTD peak (theta) | RTD mean (theta) | RTD variance | "
+             "particles at the end | simulated (s) | wall (s) | h per simulated s |",
+             "|---|---|---|---|" + "---|" * nmax + "---|---|---|---|---|---|---|---|---|---|"]
     for e in table:
         lines.append("| " + " | ".join([
             e["name"], e["status"], e.get("flow_pattern") or "-", _fmt(e.get("vrr")),
             *[_fmt(e.get(f"vrr_after_{k}")) for k in range(1, nmax + 1)], _fmt(e.get("t_mean_s")),
             _fmt(e.get("recirculations"), ".2f"), _fmt(e.get("rtd_first_theta")), _fmt(e.get("rtd_peak_theta")),
+            _fmt(e.get("rtd_mean_theta")), _fmt(e.get("rtd_variance")),
             _fmt(e.get("n_particles"), ".0f"), _fmt(e.get("simulated_time_s")), _fmt(e.get("wall_time_s"), ".0f"),
             _fmt(e.get("hours_per_simulated_s"))]) + " |")
-    lines += ["", "VRR: over the whole record; VRR after k: in the k-th window of one mean residence time "
+    notes = [f"- {e['name']}: RTD from {e['rtd_note']}" for e in table if e.get("rtd_note")]
+    lines += ["", *notes, "", "VRR: over the whole record; VRR after k: in the k-th window of one mean residence time "
               "(a row's windows are limited by counting noise where the scene's vrr_sampling_limit is near).",
               "", *[f"![{f.stem}]({f.name})" for f in files], ""]
     (out / "blending_report.md").write_text("\n".join(lines))

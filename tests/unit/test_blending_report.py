@@ -68,3 +68,26 @@ def test_report_of_two_sweeps_names_variants_by_folder(tmp_path):
     res = blending_report([tmp_path / "semi", tmp_path / "internal"], out=tmp_path / "rep")
     assert [(r["name"], r["vrr"]) for r in res["rows"]] == [("semi/b25", 3.0), ("internal/b25", 9.0)]
     assert (tmp_path / "rep" / "blending_vrr.png").exists()
+
+
+def test_a_silo_run_without_an_rtd_gets_one_from_virtual_tracers(tmp_path):
+    """Plug flow at 0.2 m/s in a 0.3 m fill: tracers released at 0.9 of the fill height arrive
+    after 0.27 / 0.2 = 1.35 s; t_mean = 2 kg / 1 kg/s = 2 s: theta 0.675, no spread."""
+    d = tmp_path / "silo_run"
+    d.mkdir()
+    x, y = np.linspace(0.005, 0.145, 15), np.linspace(0.005, 0.295, 30)
+    vy = np.full((30, 15), -0.2)
+    with ResultsFile(d / "results.h5") as r:
+        r.write_measurements(None, {"mass_flow_rate": 1.0, "silo": {
+            "fill_height": 0.3, "gate_open_time": 0.5,
+            "field": {"x": x, "y": y, "vx": 0 * vy, "vy": vy, "count": np.ones_like(vy), "n_samples": 10}}})
+        for t, m in ((0.0, 2.0), (0.5, 2.0), (1.0, 1.5)):
+            r.append_series(t, mass_present=m)
+    (d / "run.json").write_text(json.dumps({"status": "done", "time": 1.0, "wall_time": 10.0, "n_particles": 10}))
+    res = blending_report([d], out=tmp_path / "rep")
+    row = res["rows"][0]
+    assert row["t_mean_s"] == pytest.approx(2.0)
+    assert row["rtd_peak_theta"] == pytest.approx(0.675, abs=0.05)  # the RTD's bin width, 0.05
+    assert row["rtd_variance"] < 1e-3
+    assert row["flow_pattern"] == "mass"
+    assert "virtual tracers" in row["rtd_note"]
