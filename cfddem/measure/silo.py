@@ -85,6 +85,32 @@ def surface_height(pos, x0: float, x1: float, bin_width: float) -> float:
     return float(np.median(top)) if len(top) else math.nan
 
 
+def column_bulk_density(pos, mass, x0: float, x1: float, bin_width: float, y0: float, depth: float,
+                        margin: float) -> tuple[float, int]:
+    """Bulk density of a heap with an uneven surface (a crater over the outlet, heaps in the
+    corners): the x range [x0, x1) in bins of ``bin_width``; in each bin the column from
+    ``y0`` to ``margin`` below that bin's own highest centre; (mass of the centres in the
+    columns) / (their volume, ``depth`` deep).  Returns (kg/m3, particles counted); NaN where no
+    column is taller than zero."""
+    pos = np.asarray(pos, float).reshape(-1, 3)
+    m = np.asarray(mass, float).ravel()
+    nb = max(1, int((x1 - x0) / bin_width))
+    w = (x1 - x0) / nb
+    k = np.floor((pos[:, 0] - x0) / w).astype(np.int64)
+    ok = (k >= 0) & (k < nb)
+    top = np.full(nb, -np.inf)
+    np.maximum.at(top, k[ok], pos[ok, 1])
+    hi = top - margin
+    h = np.clip(hi - y0, 0.0, None)
+    h[~np.isfinite(h)] = 0.0
+    vol = float(h.sum() * w * depth)
+    if vol <= 0.0:
+        return math.nan, 0
+    kk = np.where(ok, k, 0)
+    inside = ok & (pos[:, 1] >= y0) & (pos[:, 1] < hi[kk])
+    return float(m[inside].sum()) / vol, int(inside.sum())
+
+
 class VelocityField:
     """Time-averaged, depth-averaged particle velocity on an x-y grid of ``nx`` x ``ny`` cells
     over [x0, x1) x [y0, y1): per cell the sums of v_x, v_y and the number of particle samples.

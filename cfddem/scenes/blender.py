@@ -391,13 +391,20 @@ class BlenderScene(SiloScene):
             self._density(t)
 
     def _density(self, t: float) -> None:
-        """The silo's bulk density box below the free surface (:meth:`packing`), the surface taken
-        from the spheres at most 3 d above the fill height at the gate opening (not the falling
-        re-entering stream)."""
+        """Bulk density of the silo contents in columns 2 d wide, each from 3 d above the bottom
+        to 3 d below its own highest centre, 3 d from the side walls
+        (:func:`cfddem.measure.silo.column_bulk_density`: a crater over the slot is left out, not
+        counted as empty volume); the spheres at most 3 d above the fill height at the gate
+        opening (not the falling re-entering stream)."""
+        from ..measure.silo import column_bulk_density
+
         sys_ = self.sim.system
-        keep = sys_.pos[:, 1] <= self.fill["fill_height"] + 3 * self.g.d
+        d, g = self.g.d, self.g
+        keep = (sys_.pos[:, 1] <= self.fill["fill_height"] + 3 * d) & (sys_.pos[:, 1] >= 0.0)
+        rho, _ = column_bulk_density(sys_.pos[keep], sys_.mass[keep], 3 * d, g.W - 3 * d, 2 * d,
+                                     g.y_fill + 3 * d, g.L, 3 * d)
         self.dens_t.append(t)
-        self.dens.append(self.packing(sys_.pos[keep], sys_.mass[keep])["bulk_density"])
+        self.dens.append(rho)
 
     def series(self) -> dict:
         """The silo's columns (``discharged_*``: what passed the outlet plane) and the tracer mass present."""
