@@ -121,6 +121,7 @@ def read_blend_run(run_dir, release_fraction: float = 0.9) -> dict | None:
     r["content_fraction"] = _f(b.get("content_fraction", b.get("tracer_fraction_inventory", math.nan)))
     r["vrr_nr"] = np.asarray(b.get("vrr_recirculations", []), float)
     r["vrr_by_nr"] = np.asarray(b.get("vrr_by_recirculation", []), float)
+    r["vrr_limit"] = np.asarray(b.get("vrr_sampling_limit", []), float)
     rtd = m.get("rtd", {})
     r["rtd_note"] = ""
     if not rtd:
@@ -179,6 +180,15 @@ def _blocks(r: dict, x):
     return np.asarray(x[: nb * k], float).reshape(nb, k).mean(axis=1), cb
 
 
+def _short(name: str) -> str:
+    """A legend label: the sweep's folder name without the key prefixes (blender.batch_fraction=0.25
+    -> batch 0.25)."""
+    for a, b in (("blender.batch_fraction=", "batch "), ("blender.sublayers=", "layers "), ("blender.", ""),
+                 ("silo.", ""), ("__", ", ")):
+        name = name.replace(a, b)
+    return name
+
+
 def _plots(runs: list[dict], out: Path) -> list[Path]:
     import matplotlib
 
@@ -190,37 +200,43 @@ def _plots(runs: list[dict], out: Path) -> list[Path]:
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     col = {r["name"]: colours[i % len(colours)] for i, r in enumerate(blend)}
     if blend:
-        fig, ax = plt.subplots(figsize=(7, 4.2))
+        fig, ax = plt.subplots(figsize=(10, 4.2))
         xl = ""
         for r in blend:
             x, xl = _xaxis(r)
             xb, cb = _blocks(r, x)
             if xb is None:
-                ax.plot(x, r["c_out"], "-", lw=1.2, color=col[r["name"]], label=r["name"])
+                ax.plot(x, r["c_out"], "-", lw=1.2, color=col[r["name"]], label=_short(r["name"]))
             else:  # the sampling intervals faint, blocks of a twentieth of t_mean as the line
                 ax.plot(x, r["c_out"], ".", ms=2, alpha=0.25, color=col[r["name"]])
-                ax.plot(xb, cb, "-", lw=1.5, color=col[r["name"]], label=r["name"])
+                ax.plot(xb, cb, "-", lw=1.5, color=col[r["name"]], label=_short(r["name"]))
             if math.isfinite(r["content_fraction"]):
                 ax.axhline(r["content_fraction"], ls="--", lw=1, color=col[r["name"]])
         ax.set_xlabel(xl)
         ax.set_ylabel("tracer mass fraction in the outflow")
         ax.set_ylim(-0.02, 1.02)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="best")
+        ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
         ax.set_title("outflow concentration: dots per record interval, lines per 1/20 of t_mean;\n"
                      "dashed: the silo content's mean", fontsize=9)
         fig.tight_layout()
         files.append(out / "blending_concentration.png")
-        fig.savefig(files[-1], dpi=120)
+        fig.savefig(files[-1], dpi=120, bbox_inches="tight")
         plt.close(fig)
 
-        fig, ax = plt.subplots(figsize=(6, 4))
+        fig, ax = plt.subplots(figsize=(9, 4.2))
         curves = [r for r in blend if len(r["vrr_nr"]) and len(r["vrr_nr"]) == len(r["vrr_by_nr"])]
         if curves:
             for r in curves:
                 ok = np.isfinite(r["vrr_by_nr"]) & (r["vrr_by_nr"] > 0)
-                ax.plot(r["vrr_nr"][ok], r["vrr_by_nr"][ok], "o-", color=col[r["name"]], label=r["name"])
+                ax.plot(r["vrr_nr"][ok], r["vrr_by_nr"][ok], "o-", color=col[r["name"]], label=_short(r["name"]))
+            lim = np.concatenate([r["vrr_limit"] for r in curves]) if curves else np.zeros(0)
+            lim = lim[np.isfinite(lim)]
+            if len(lim):
+                ax.axhspan(float(lim.min()), float(lim.max()), color="0.85", zorder=0,
+                           label="counting limit (a perfect blend)")
             ax.set_xlabel("number of recirculations N_r")
+            ax.xaxis.get_major_locator().set_params(integer=True)
         else:
             names = [r["name"] for r in blend]
             vals = [r["vrr"] if math.isfinite(r["vrr"]) and r["vrr"] > 0 else np.nan for r in blend]
@@ -230,10 +246,10 @@ def _plots(runs: list[dict], out: Path) -> list[Path]:
         ax.set_ylabel("variance reduction ratio VRR")
         ax.grid(alpha=0.3, which="both")
         if curves:
-            ax.legend(fontsize=8)
+            ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
         fig.tight_layout()
         files.append(out / "blending_vrr.png")
-        fig.savefig(files[-1], dpi=120)
+        fig.savefig(files[-1], dpi=120, bbox_inches="tight")
         plt.close(fig)
 
     rtd = [r for r in runs if len(r["theta"]) and len(r["E"]) == len(r["theta"])]
@@ -241,9 +257,9 @@ def _plots(runs: list[dict], out: Path) -> list[Path]:
         fig, (a1, a2) = plt.subplots(1, 2, figsize=(9, 3.8))
         for r in rtd:
             c = col.get(r["name"])
-            a1.plot(r["theta"], r["E"], "-", color=c, label=r["name"])
+            a1.plot(r["theta"], r["E"], "-", color=c, label=_short(r["name"]))
             if len(r["F"]) == len(r["theta"]):
-                a2.plot(r["theta"], r["F"], "-", color=c, label=r["name"])
+                a2.plot(r["theta"], r["F"], "-", color=c, label=_short(r["name"]))
         a1.set_xlabel("theta = t / t_mean")
         a1.set_ylabel("E(theta)")
         a2.set_xlabel("theta = t / t_mean")
@@ -251,36 +267,46 @@ def _plots(runs: list[dict], out: Path) -> list[Path]:
         a2.set_ylim(-0.02, 1.02)
         for a in (a1, a2):
             a.grid(alpha=0.3)
-        a1.legend(fontsize=8)
+        a2.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
         fig.tight_layout()
         files.append(out / "blending_rtd.png")
-        fig.savefig(files[-1], dpi=120)
+        fig.savefig(files[-1], dpi=120, bbox_inches="tight")
         plt.close(fig)
 
     fld = [r for r in runs if isinstance(r["field"], dict) and np.any(np.isfinite(r["field"].get("vx", [np.nan])))]
     if fld:
+        from matplotlib.colors import LogNorm
+
         k = len(fld)
-        fig, axes = plt.subplots(1, k, figsize=(3.2 * k + 0.8, 5.2), squeeze=False)
+        ncol = min(k, 5)
+        nrow = (k + ncol - 1) // ncol
+        fig, axes = plt.subplots(nrow, ncol, figsize=(2.9 * ncol + 1.2, 5.4 * nrow), squeeze=False,
+                                 gridspec_kw={"hspace": 0.55})
         vmax = max(float(np.nanmax(np.hypot(r["field"]["vx"], r["field"]["vy"]))) for r in fld)
+        # log colours: the slow bed and the fast stream falling onto the heap span decades
+        norm = LogNorm(vmin=1e-3 * vmax, vmax=vmax)
         im = None
-        for a, r in zip(axes[0], fld):
+        for a, r in zip(axes.ravel(), fld):
             f = r["field"]
             x, y = np.asarray(f["x"]), np.asarray(f["y"])
             sp = np.hypot(f["vx"], f["vy"])
             dx, dy = x[1] - x[0], y[1] - y[0]
             ext = [(x[0] - dx / 2) * 1e3, (x[-1] + dx / 2) * 1e3, (y[0] - dy / 2) * 1e3, (y[-1] + dy / 2) * 1e3]
-            im = a.imshow(np.ma.masked_invalid(sp), origin="lower", extent=ext, aspect="equal", cmap="viridis",
-                          vmin=0.0, vmax=vmax)
+            im = a.imshow(np.ma.masked_invalid(np.clip(sp, 1e-3 * vmax, None)), origin="lower", extent=ext,
+                          aspect="equal", cmap="viridis", norm=norm)
             ch = r["channel"]
             if isinstance(ch, dict) and "x_left" in ch:
                 a.plot(np.asarray(ch["x_left"]) * 1e3, np.asarray(ch["y"]) * 1e3, "r-", lw=1.3)
                 a.plot(np.asarray(ch["x_right"]) * 1e3, np.asarray(ch["y"]) * 1e3, "r-", lw=1.3)
-            a.set_title(r["name"] + (f"\n{r['flow_pattern']} flow" if r["flow_pattern"] else ""), fontsize=9)
+            a.set_title(_short(r["name"]).replace("/", "\n").replace(", ", "\n")
+                        + (f"\n{r['flow_pattern']} flow" if r["flow_pattern"] else ""), fontsize=8)
             a.set_xlabel("x (mm)")
-        axes[0][0].set_ylabel("y (mm)")
-        fig.colorbar(im, ax=list(axes[0]), label="time-averaged speed (m/s)", shrink=0.8)
+            a.set_ylabel("y (mm)")
+        for a in axes.ravel()[k:]:
+            a.set_visible(False)
+        fig.colorbar(im, ax=list(axes.ravel()), label="time-averaged speed (m/s, log scale)", shrink=0.8)
         files.append(out / "blending_fields.png")
-        fig.savefig(files[-1], dpi=120)
+        fig.savefig(files[-1], dpi=110, bbox_inches="tight")
         plt.close(fig)
     return files
 
