@@ -12,7 +12,7 @@ The system is built by a run of one step (set-up, first neighbour list, kernels 
 median gives the cost per step.  The lattice falls freely for these steps (no contact yet, one
 neighbour list): a packed, flowing bed has more pairs per sphere (``--reference`` counts them in
 the last snapshot of a run of packed pellets) and rebuilds its list every few dozen steps, so
-this is the cost of the particle engine on this many spheres with the blender's 40 walls, a lower
+this is the cost of the particle engine on this many spheres with the blender's 25 walls, a lower
 bound of the discharge's.  Prints the CPU model, the load, the cost per step and per sphere-step,
 the cost per simulated second, and the resident and peak memory.
 """

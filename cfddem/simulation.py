@@ -836,9 +836,13 @@ def expected_particles(case: Case) -> int:
     return n
 
 
-def memory_estimate(n: int) -> float:
-    """Bytes for n particles: ~30 float64 per particle plus ~12 neighbour pairs of ~72 bytes."""
-    return n * (30 * 8 + 12 * 72)
+def memory_estimate(n: int, n_walls: int = 0, mesh_slots: int = 0) -> float:
+    """Bytes for n particles: ~30 float64 per particle, ~12 neighbour pairs of ~72 bytes, and the
+    per-particle contact slots of each analytic wall (history, force, torque: 10 float64 and a
+    flag, 81 bytes) and of each mesh slot (18 float64; one is allocated without mesh walls).
+    Measured on the full multi-flow blender (1.2 M spheres, 25 walls): 4.05 kB per sphere
+    resident, this gives 3.3 kB (the rest: neighbour-list scratch and Python)."""
+    return n * (30 * 8 + 12 * 72 + 81 * n_walls + 144 * mesh_slots)
 
 
 def describe_case(case: Case) -> list[str]:
@@ -886,7 +890,10 @@ def describe_case(case: Case) -> list[str]:
             lines += mesh_wall(w).check_lines(case.particles.diameter if particles else None)
     if particles:
         n = expected_particles(case)
-        lines.append(f"expected particles: about {n:,}; memory about {memory_estimate(n) / 2 ** 20:.0f} MiB")
+        walls = wall_specs(case)
+        nw = sum(1 for w in walls if w.kind != "mesh")
+        mem = memory_estimate(n, nw, 6 if any(w.kind == "mesh" for w in walls) else 1)
+        lines.append(f"expected particles: about {n:,}; memory about {mem / 2 ** 20:.0f} MiB ({nw} analytic walls)")
         v = expected_max_speed(case)
         if v > 0:
             lines.append(f"expected speed scale: {v:.3g} m/s (the scene's fastest expected particle or gas speed)")
