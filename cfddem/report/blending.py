@@ -200,25 +200,33 @@ def _plots(runs: list[dict], out: Path) -> list[Path]:
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     col = {r["name"]: colours[i % len(colours)] for i, r in enumerate(blend)}
     if blend:
-        fig, ax = plt.subplots(figsize=(10, 4.2))
-        xl = ""
+        # one panel per sweep folder (the part of the name before "/"), sharing the axes
+        groups: dict[str, list] = {}
         for r in blend:
-            x, xl = _xaxis(r)
-            xb, cb = _blocks(r, x)
-            if xb is None:
-                ax.plot(x, r["c_out"], "-", lw=1.2, color=col[r["name"]], label=_short(r["name"]))
-            else:  # the sampling intervals faint, blocks of a twentieth of t_mean as the line
-                ax.plot(x, r["c_out"], ".", ms=2, alpha=0.25, color=col[r["name"]])
-                ax.plot(xb, cb, "-", lw=1.5, color=col[r["name"]], label=_short(r["name"]))
-            if math.isfinite(r["content_fraction"]):
-                ax.axhline(r["content_fraction"], ls="--", lw=1, color=col[r["name"]])
-        ax.set_xlabel(xl)
-        ax.set_ylabel("tracer mass fraction in the outflow")
-        ax.set_ylim(-0.02, 1.02)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-        ax.set_title("outflow concentration: dots per record interval, lines per 1/20 of t_mean;\n"
-                     "dashed: the silo content's mean", fontsize=9)
+            groups.setdefault(r["name"].split("/")[0] if "/" in r["name"] else "", []).append(r)
+        fig, axes = plt.subplots(len(groups), 1, figsize=(10, 3.4 * len(groups) + 0.8), squeeze=False,
+                                 sharex=True)
+        xl = ""
+        for ax, (g, rs) in zip(axes[:, 0], groups.items()):
+            for r in rs:
+                x, xl = _xaxis(r)
+                xb, cb = _blocks(r, x)
+                lab = _short(r["name"].split("/", 1)[1] if g else r["name"])
+                if xb is None:
+                    ax.plot(x, r["c_out"], "-", lw=1.2, color=col[r["name"]], label=lab)
+                else:  # the sampling intervals faint, blocks of a twentieth of t_mean as the line
+                    ax.plot(x, r["c_out"], ".", ms=2, alpha=0.25, color=col[r["name"]])
+                    ax.plot(xb, cb, "-", lw=1.5, color=col[r["name"]], label=lab)
+                if math.isfinite(r["content_fraction"]):
+                    ax.axhline(r["content_fraction"], ls="--", lw=1, color=col[r["name"]])
+            ax.set_ylabel("tracer mass fraction\nin the outflow")
+            ax.set_ylim(-0.02, 1.02)
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), title=g or None,
+                      title_fontsize=8)
+        axes[-1, 0].set_xlabel(xl)
+        axes[0, 0].set_title("outflow concentration: dots per record interval, lines per 1/20 of t_mean; "
+                             "dashed: the silo content's mean", fontsize=9)
         fig.tight_layout()
         files.append(out / "blending_concentration.png")
         fig.savefig(files[-1], dpi=120, bbox_inches="tight")
