@@ -70,17 +70,24 @@ def bulk_density(pos, mass, box_lo, box_hi) -> tuple[float, int]:
     return float(np.asarray(mass, float)[inside].sum()) / vol, int(inside.sum())
 
 
+def _bin_tops(pos, x0: float, x1: float, bin_width: float):
+    """Per x bin of [x0, x1) (width about ``bin_width``): the highest particle centre (-inf in an
+    empty bin), with each particle's bin index and whether it lies in the range."""
+    nb = max(1, int((x1 - x0) / bin_width))
+    k = np.floor((pos[:, 0] - x0) / (x1 - x0) * nb).astype(np.int64)
+    ok = (k >= 0) & (k < nb)
+    top = np.full(nb, -np.inf)
+    np.maximum.at(top, k[ok], pos[ok, 1])
+    return top, k, ok
+
+
 def surface_height(pos, x0: float, x1: float, bin_width: float) -> float:
     """Height of the free surface: the median over x bins of [x0, x1) of the highest particle
     centre in each (non-empty) bin; NaN without particles."""
     pos = np.asarray(pos, float).reshape(-1, 3)
     if not len(pos):
         return math.nan
-    nb = max(1, int((x1 - x0) / bin_width))
-    k = np.floor((pos[:, 0] - x0) / (x1 - x0) * nb).astype(np.int64)
-    ok = (k >= 0) & (k < nb)
-    top = np.full(nb, -np.inf)
-    np.maximum.at(top, k[ok], pos[ok, 1])
+    top, _, _ = _bin_tops(pos, x0, x1, bin_width)
     top = top[np.isfinite(top)]
     return float(np.median(top)) if len(top) else math.nan
 
@@ -94,12 +101,8 @@ def column_bulk_density(pos, mass, x0: float, x1: float, bin_width: float, y0: f
     column is taller than zero."""
     pos = np.asarray(pos, float).reshape(-1, 3)
     m = np.asarray(mass, float).ravel()
-    nb = max(1, int((x1 - x0) / bin_width))
-    w = (x1 - x0) / nb
-    k = np.floor((pos[:, 0] - x0) / w).astype(np.int64)
-    ok = (k >= 0) & (k < nb)
-    top = np.full(nb, -np.inf)
-    np.maximum.at(top, k[ok], pos[ok, 1])
+    top, k, ok = _bin_tops(pos, x0, x1, bin_width)
+    w = (x1 - x0) / len(top)
     hi = top - margin
     h = np.clip(hi - y0, 0.0, None)
     h[~np.isfinite(h)] = 0.0
