@@ -21,24 +21,17 @@ from __future__ import annotations
 
 import argparse
 import os
-import subprocess
 import sys
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from machine import cpu_model  # noqa: E402  (benchmarks/machine.py)
+
 LATTICE = ['silo.fill="lattice"', "silo.lattice_gap=0.02", "silo.lattice_jitter=0.01", "silo.height=3.0",
            "output.vtk=false", "output.plots=false", "output.snapshot_interval=100.0",
            "output.series_interval=100.0", "checkpoint.wall_interval=0"]
-
-
-def _cpu() -> str:
-    try:
-        out = subprocess.run(["lscpu"], capture_output=True, text=True).stdout
-        return next(line.split(":", 1)[1].strip() for line in out.splitlines() if line.startswith("Model name"))
-    except (OSError, StopIteration):
-        return "unknown CPU"
 
 
 def _mem() -> tuple[float, float]:
@@ -67,7 +60,7 @@ def main(argv=None) -> int:
     from cfddem.config import load_case
     from cfddem.simulation import Simulation
 
-    print(f"CPU: {_cpu()}, {os.cpu_count()} cores; load before: {os.getloadavg()}")
+    print(f"CPU: {cpu_model()}, {os.cpu_count()} cores; load before: {os.getloadavg()}")
     case = load_case(a.case, overrides=LATTICE + a.extra + ["time.max_steps=1", f"time.threads={a.threads}"])
     sim = Simulation(case, a.out, overwrite=True, echo=False, progress=False, threads=a.threads)
     t0 = time.perf_counter()

@@ -25,17 +25,7 @@ import time
 from pathlib import Path
 
 import h5py
-
-
-def cpu_model() -> str:
-    try:
-        out = subprocess.run(["lscpu"], capture_output=True, text=True).stdout
-        for line in out.splitlines():
-            if line.startswith("Model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return "unknown CPU"
+from machine import cpu_model  # benchmarks/machine.py
 
 
 def load() -> str:

@@ -42,15 +42,11 @@ from cfddem.particles import MeshWall, ParticleSystem  # noqa: E402
 from cfddem.scenes.common import gravity_vector, wall_specs  # noqa: E402
 from cfddem.scenes.silo import container_meshes  # noqa: E402
 from cfddem.simulation import Simulation, contact_law, engine_wall  # noqa: E402
+from machine import cpu_model  # noqa: E402  (benchmarks/machine.py)
 
 
 def machine() -> str:
-    model = "?"
-    try:
-        out = subprocess.run(["lscpu"], capture_output=True, text=True, timeout=10).stdout
-        model = next((ln.split(":", 1)[1].strip() for ln in out.splitlines() if ln.startswith("Model name")), "?")
-    except (OSError, subprocess.SubprocessError):
-        pass
+    model = cpu_model()
     try:
         up = subprocess.run(["uptime"], capture_output=True, text=True, timeout=10).stdout.strip()
     except (OSError, subprocess.SubprocessError):
