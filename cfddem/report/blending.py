@@ -118,7 +118,7 @@ def read_blend_run(run_dir, release_fraction: float = 0.9) -> dict | None:
         r["n_r"] = r["time"] / r["t_mean"]
     else:
         r["n_r"] = None
-    r["content_fraction"] = _f(b.get("content_fraction", b.get("tracer_fraction_inventory", math.nan)))
+    r["content_fraction"] = _f(b.get("tracer_fraction_inventory", math.nan))
     r["vrr_nr"] = np.asarray(b.get("vrr_recirculations", []), float)
     r["vrr_by_nr"] = np.asarray(b.get("vrr_by_recirculation", []), float)
     r["vrr_limit"] = np.asarray(b.get("vrr_sampling_limit", []), float)

@@ -20,7 +20,7 @@ def _variant(folder, name, vrr, t_mean, wall, sim, pattern):
     vy = -np.outer(np.ones(30), np.exp(-((x - 0.075) / 0.03) ** 2))
     with ResultsFile(d / "results.h5") as r:
         r.write_measurements(None, {
-            "blending": {"time": t, "concentration_out": c, "vrr": vrr, "t_mean": t_mean, "content_fraction": 0.25,
+            "blending": {"time": t, "concentration_out": c, "vrr": vrr, "t_mean": t_mean, "tracer_fraction_inventory": 0.25,
                          "vrr_recirculations": np.array([1.0, 2.0, 3.0]),
                          "vrr_by_recirculation": np.array([2.0, 5.0, 11.0]) * vrr / 11.0},
             "rtd": {"theta": np.linspace(0, 3, 61), "E": np.exp(-np.linspace(0, 3, 61)),
