@@ -654,6 +654,13 @@ def reduce_walls(n, nw, won, wfw, wtw, fout, tout):
                     tout[w, c] += wtw[i, w, c]
 
 
+@kernel(inline="always")
+def _in_zone(zones, z, x, y, w):
+    """Whether the point (x, y, w) lies in zone row z: lo <= r < hi on every axis."""
+    return (zones[z, 0] <= x < zones[z, 3] and zones[z, 1] <= y < zones[z, 4]
+            and zones[z, 2] <= w < zones[z, 5])
+
+
 @kernel
 def velocity_zones(n, pos, vel, body, held, zones, nz):
     """Velocity zones (a feeder): each row of ``zones`` is (lo x, y, z, hi x, y, z, axis, value);
@@ -664,8 +671,7 @@ def velocity_zones(n, pos, vel, body, held, zones, nz):
         if body[i] >= 0 or held[i] != 0:
             continue
         for z in range(nz):
-            if (zones[z, 0] <= pos[i, 0] < zones[z, 3] and zones[z, 1] <= pos[i, 1] < zones[z, 4]
-                    and zones[z, 2] <= pos[i, 2] < zones[z, 5]):
+            if _in_zone(zones, z, pos[i, 0], pos[i, 1], pos[i, 2]):
                 vel[i, int(zones[z, 6])] = zones[z, 7]
                 cnt += 1
                 break
@@ -681,8 +687,7 @@ def clump_velocity_zones(nb, start, members, com, bvel, vfix, pvel, zones, nz):
     cnt = 0
     for b in range(nb):
         for z in range(nz):
-            if (zones[z, 0] <= com[b, 0] < zones[z, 3] and zones[z, 1] <= com[b, 1] < zones[z, 4]
-                    and zones[z, 2] <= com[b, 2] < zones[z, 5]):
+            if _in_zone(zones, z, com[b, 0], com[b, 1], com[b, 2]):
                 a = int(zones[z, 6])
                 if vfix[b, a] != 0.0:
                     break
