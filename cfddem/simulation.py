@@ -885,12 +885,12 @@ def describe_case(case: Case) -> list[str]:
                  + (f"{case.frame.rpm:g} rpm, Omega = ({om[0]:.4g}, {om[1]:.4g}, {om[2]:.4g}) rad/s about "
                     f"{tuple(case.frame.axis_point)}" if case.frame.rpm else "none (inertial frame, no rotation terms)"))
     lines += scene_of(case).describe(case)
-    for w in wall_specs(case):
+    walls = wall_specs(case)
+    for w in walls:
         if w.kind == "mesh":
             lines += mesh_wall(w).check_lines(case.particles.diameter if particles else None)
     if particles:
         n = expected_particles(case)
-        walls = wall_specs(case)
         nw = sum(1 for w in walls if w.kind != "mesh")
         mem = memory_estimate(n, nw, 6 if any(w.kind == "mesh" for w in walls) else 1)
         lines.append(f"expected particles: about {n:,}; memory about {mem / 2 ** 20:.0f} MiB ({nw} analytic walls)")
