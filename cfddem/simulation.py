@@ -893,7 +893,7 @@ def describe_case(case: Case) -> list[str]:
         n = expected_particles(case)
         nw = sum(1 for w in walls if w.kind != "mesh")
         mem = memory_estimate(n, nw, 6 if any(w.kind == "mesh" for w in walls) else 1)
-        lines.append(f"expected particles: about {n:,}; memory about {mem / 2 ** 20:.0f} MiB ({nw} analytic walls)")
+        lines.append(f"expected particles: about {n:,}; memory about {mem / 2 ** 20:.0f} MiB ({nw} analytic wall{'s' if nw != 1 else ''})")
         v = expected_max_speed(case)
         if v > 0:
             lines.append(f"expected speed scale: {v:.3g} m/s (the scene's fastest expected particle or gas speed)")
