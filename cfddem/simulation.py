@@ -164,6 +164,8 @@ class Simulation:
         self.inlet = self.scene.make_inlet()
         self.measure = self.scene.make_measurements()
         self.budget = self.scene.make_budget()  # the particles' momentum budget, sampled with measure
+        if self.budget is not None:  # it counts every step from its first sample on
+            self.budget.attach(self.system)
         self.gas = None
         self.gas_budget = None
         if case.gas.enabled:

@@ -119,6 +119,10 @@ class ParticleSystem:
         self.step_count = 0
         self._next_id = 0
         self._cap = 0
+        #: called with this system after every completed step (e.g. a momentum budget that
+        #: accumulates every step's forces); None: nothing.  Not state: whoever sets it sets it
+        #: again after a restart.
+        self.step_hook = None
         self._alloc_particles(max(int(capacity), 16))
         # neighbour list: current and previous (for history remap) buffers
         self._pcap = 0
@@ -539,6 +543,8 @@ class ParticleSystem:
                 st = self._nan_status()
                 st.steps_done = s + 1
                 return st
+            if self.step_hook is not None:
+                self.step_hook(self)
             if self._mesh_over:
                 i = int(np.argmax(np.sum(self._ms_mesh[: self.n] >= 0, axis=1)))
                 pid = int(self._ids[i])

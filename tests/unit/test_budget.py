@@ -97,6 +97,7 @@ def fixed_bed():
     b = MomentumBudget([0.0, Ly], axis=1, wall_names=["floor", "lid"])
     cg.force_sink = b
     gb = GasBudget(cg.gas, axis=1, start_time=s.time).attach()  # the gas's side over the same gas steps
+    b.sample(s.time, s, cg)  # the particles' window starts here too
     dps = []
     for _ in range(40):
         assert cg.advance(40).ok
