@@ -218,6 +218,8 @@ class Simulation:
         return st
 
     def set_state(self, st: dict) -> None:
+        if self.measure is not None and hasattr(self.measure, "upgrade_checkpoint"):
+            st = self.measure.upgrade_checkpoint(st)  # a checkpoint with older measurement names
         self.system.set_state(st["system"])
         for k, v in st["schedules"].items():
             if k in self.schedules:

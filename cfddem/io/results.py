@@ -366,11 +366,21 @@ def read_snapshot(path: str | Path, k: int) -> dict:
 
 def read_measurements(path: str | Path, with_attrs: bool = False) -> dict:
     """``/measurements`` as a nested dict of arrays (scalars as numpy scalars, strings as
-    str). With ``with_attrs`` each group's attributes appear under the key ``"@attrs"``."""
+    str). With ``with_attrs`` each group's attributes appear under the key ``"@attrs"``.
+    A chute file written before the side names were those seen in the direction of flow
+    (no ``sides`` attribute on its chute group) is read with today's names
+    (:func:`cfddem.measure.chute.upgrade_legacy_sides`)."""
+    from ..measure.chute import upgrade_legacy_sides
+
     with h5py.File(path, "r") as f:
         if "measurements" not in f:
             return {}
-        return _read_tree(f["measurements"], with_attrs)
+        meas = upgrade_legacy_sides(_read_tree(f["measurements"], True))
+    return meas if with_attrs else _without_attrs(meas)
+
+
+def _without_attrs(tree: dict) -> dict:
+    return {k: _without_attrs(v) if isinstance(v, dict) else v for k, v in tree.items() if k != "@attrs"}
 
 
 def read_config(path: str | Path) -> tuple[str, dict]:

@@ -2,7 +2,8 @@
 streamwise velocity, depth profiles, and their time averages.
 
 Axes: x across the chute (0..W), y normal to the floor (floor at y = 0), z down the chute.
-All functions take plain numpy arrays: ``pos`` (n,3), ``vel`` (n,3), ``radius`` (n,).
+Sides are named as seen in the direction of flow: the x = 0 side is the right (:data:`SIDES`,
+:func:`side_of`; the one place that names them).  All functions take plain numpy arrays: ``pos`` (n,3), ``vel`` (n,3), ``radius`` (n,).
 Positions are in the coordinates the caller passes; the Simulation passes z measured from
 the measurement origin so that stations z = 0, 0.2, 0.4, 0.6 m mean what the study means.
 
@@ -15,7 +16,7 @@ Choices (also in docs/outputs.md):
   bare floor a height sensor would see).
 * Sensor bed height: the area-weighted mean of the cell bed heights over a rectangle of
   5 x 5 cells (25 mm x 30 mm) centred exactly on the sensor; cells cut by the rectangle
-  count with their covered fraction (the sensors at x = 0.015, 0.045, 0.065 m sit on cell
+  count with their covered fraction (the sensors at x = 0.015, 0.035, 0.065 m sit on cell
   edges, so a block of whole cells could not be centred on them). NaN cells are left out;
   the rectangle is clipped to the grid.
 * Surface velocity of a cell: the mean velocity of the ``n_top`` = 6 particles with the
@@ -39,20 +40,110 @@ import numpy as np
 
 from cfddem.errors import CaseError
 
-def side_seen_downstream(x: float, width: float) -> str:
-    """The side of the chute that x lies on for an observer standing on the floor and facing
-    down the chute (+z, y up): "right" for x < width/2 (right = z x y = -x: the x = 0 wall is on
-    their right), "left" above, "middle" within a tenth of the width of the centre line.  The
-    measurement names "left"/"centre"/"right" of physics.md section 5 count x from 0 and so
-    name the opposite sides; figures print both (docs/chute-study.md, "Axes and the sense of
-    rotation")."""
+# ---------------------------------------------------------------------- sides
+# The one place that names the chute's sides.  Axes are right-handed: x across the chute
+# (walls at x = 0 and x = W), y up from the floor, z down the chute.  Left and right are
+# seen in the direction of flow, by an observer on the floor facing down the chute (+z, y up):
+# their right is forward x up = z x y = -x, so the x = 0 wall is on the RIGHT.
+# physics.md section 5 counts its sensor positions 0.015, 0.045, 0.065 m from the wall it
+# calls left, our x = W wall: its sensors are our x = W - 0.015, W - 0.045, W - 0.065.
+SIDE_AT_X0 = "right"
+SIDE_AT_XW = "left"
+CENTRE = "centre"
+#: the ``sides`` attribute of /measurements/chute and /measurements/momentum_budget; results
+#: files written before it named the x = 0 side "left" (read_measurements swaps their names)
+SIDES = "seen in the direction of flow (facing down the chute, +z, y up); right = the x = 0 side"
+#: one line for reports, case files and docs
+CONVENTION = ("axes right-handed, x across, y up from the floor, z down the chute; positive rpm = "
+              "counter-clockwise seen from above; left/right seen in the direction of flow")
+
+
+def side_of(x: float, width: float) -> str:
+    """The side of the chute that x lies on, seen in the direction of flow: "right" below
+    the centre line (the x = 0 side), "left" above, "centre" within a tenth of the width of
+    the centre line."""
     if abs(x - 0.5 * width) <= 0.1 * width:
-        return "middle"
-    return "right" if x < 0.5 * width else "left"
+        return CENTRE
+    return SIDE_AT_X0 if x < 0.5 * width else SIDE_AT_XW
 
 
-SENSOR_X = (0.015, 0.045, 0.065)
-SENSOR_NAMES = ("left", "centre", "right")
+def wall_at(name: str, width: float) -> str:
+    """The wall a side name refers to, in words: "x = 0" for the right, "x = 80 mm" for
+    the left side of a 0.08 m chute ("" for the centre and anything else)."""
+    base = name.split("_")[0]
+    if base == SIDE_AT_X0:
+        return "x = 0"
+    if base == SIDE_AT_XW:
+        return f"x = {1e3 * width:.0f} mm" if math.isfinite(width) else "x = W"
+    return ""
+
+
+def side_label(name: str, width: float) -> str:
+    """A figure label of a side, sensor or slice name: "right (x = 0 side)", "left half
+    (x = 80 mm side)", "centre"."""
+    wall = wall_at(name, width)
+    words = name.replace("_", " ")
+    return f"{words} ({wall} side)" if wall else words
+
+
+def x_label(width: float) -> str:
+    """The label of a figure's x axis across the chute, naming the walls' sides."""
+    return f"x across the chute [mm] (x = 0: {SIDE_AT_X0} wall, {wall_at(SIDE_AT_XW, width)}: {SIDE_AT_XW} wall)"
+
+
+def sensor_names(sensor_x, width: float) -> list[str]:
+    """The names of sensors at ``sensor_x`` (:func:`side_of`)."""
+    return [side_of(float(x), width) for x in sensor_x]
+
+
+#: the names results files written before ``SIDES`` used, and the names they mean now
+LEGACY_NAMES = {"left": "right", "right": "left", "left_half": "right_half", "right_half": "left_half"}
+
+
+def _renamed(key: str, prefixes) -> str:
+    for pre in prefixes:
+        if key.startswith(pre):
+            rest = key[len(pre):]
+            for old in sorted(LEGACY_NAMES, key=len, reverse=True):  # "left_half" before "left"
+                if rest == old or rest.startswith(old + "_"):
+                    return pre + LEGACY_NAMES[old] + rest[len(old):]
+    return key
+
+
+def _renamed_segment(key: str) -> str:
+    """``sum/profile/0/left/phi`` -> ``sum/profile/0/right/phi`` (:data:`LEGACY_NAMES`)."""
+    parts = key.split("/")
+    if len(parts) == 5 and parts[1] == "profile":
+        parts[3] = LEGACY_NAMES.get(parts[3], parts[3])
+    return "/".join(parts)
+
+
+def upgrade_legacy_sides(meas: dict) -> dict:
+    """``/measurements`` as :func:`cfddem.io.results.read_measurements` reads it (attributes
+    under ``"@attrs"``), with the side names of a file written before the ``sides`` attribute
+    (its chute group lacks it; the x = 0 side was then "left") swapped: in the chute group
+    ``profile_<side>_*``, ``slice_<side>`` and the attribute ``sensor_names``, in the
+    momentum budget ``wall_<side>*``.  The chute group then carries ``sides`` and
+    ``sides_swapped_on_read = 1``.  Files with ``sides``, or without a chute group, are
+    returned as they are.  Modifies and returns ``meas``."""
+    chute = meas.get("chute")
+    if not isinstance(chute, dict) or "sides" in chute.get("@attrs", {}):
+        return meas
+    for group, prefixes in (("chute", ("profile_", "slice_")), ("momentum_budget", ("wall_",))):
+        g = meas.get(group)
+        if not isinstance(g, dict):
+            continue
+        items = [(k if k == "@attrs" else _renamed(k, prefixes), v) for k, v in g.items()]
+        g.clear()
+        g.update(items)
+    at = chute.setdefault("@attrs", {})
+    if "sensor_names" in at:
+        at["sensor_names"] = ",".join(LEGACY_NAMES.get(n, n) for n in str(at["sensor_names"]).split(","))
+    at.update(sides=SIDES, sides_swapped_on_read=1)
+    return meas
+
+
+SENSOR_X = (0.015, 0.035, 0.065)   # the right, centre and left sensors of a 0.08 m chute
 STATIONS = (0.0, 0.2, 0.4, 0.6)
 
 
@@ -213,11 +304,12 @@ def sphere_volume_below(r: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 
 def default_slices(width: float, slice_width: float = 0.025) -> dict[str, tuple[float, float]]:
-    """Left / centre / right slices of ``slice_width`` (against each wall and centred),
-    the whole width and the left and right halves."""
+    """Right / centre / left slices of ``slice_width`` (against the x = 0 wall, centred,
+    against the x = W wall; sides seen in the direction of flow), the whole width and the
+    right and left halves."""
     w, s = float(width), float(slice_width)
-    return {"left": (0.0, s), "centre": (0.5 * (w - s), 0.5 * (w + s)), "right": (w - s, w),
-            "whole": (0.0, w), "left_half": (0.0, 0.5 * w), "right_half": (0.5 * w, w)}
+    return {SIDE_AT_X0: (0.0, s), CENTRE: (0.5 * (w - s), 0.5 * (w + s)), SIDE_AT_XW: (w - s, w),
+            "whole": (0.0, w), f"{SIDE_AT_X0}_half": (0.0, 0.5 * w), f"{SIDE_AT_XW}_half": (0.5 * w, w)}
 
 
 def depth_profiles(pos, vel, radius, x_slices: dict, z_window: tuple[float, float], y_edges):
@@ -452,11 +544,29 @@ class ChuteMeasurements:
         return dict(dx=self.cells.dx, dz=self.cells.dz, n_top=self.n_top,
                     sensor_block=self.sensor_block, start_time=self.start_time,
                     empty_bed=self.empty_bed, profile_half_length=self.profile_half_length,
-                    sensor_names=",".join(SENSOR_NAMES[: len(self.sensor_x)])
-                    if len(self.sensor_x) == 3 else "")
+                    sensor_names=",".join(sensor_names(self.sensor_x, self.width)), sides=SIDES)
 
     def get_state(self) -> dict:
-        return self.averager.get_state()
+        return dict(self.averager.get_state(), sides_flow_seen=np.int64(1))
 
     def set_state(self, state: dict) -> None:
         self.averager.set_state(state)
+
+    @staticmethod
+    def upgrade_checkpoint(st: dict) -> dict:
+        """A run's checkpoint state (``Simulation.get_state``) written before the side names
+        were those seen in the direction of flow (its ``measure`` state lacks
+        ``sides_flow_seen``), with the names swapped as :func:`upgrade_legacy_sides` swaps
+        them in results files: the averages ``profile/<j>/<side>/...`` and the budget's
+        ``rows/wall_<side>``, so that a resumed run adds to the right sums."""
+        m = st.get("measure")
+        if not isinstance(m, dict):
+            return st
+        m = _flatten(m)
+        if "sides_flow_seen" in m:
+            return st
+        out = dict(st)
+        out["measure"] = {_renamed_segment(k): v for k, v in m.items()}
+        if isinstance(st.get("budget"), dict):
+            out["budget"] = {_renamed(k, ("rows/wall_",)): v for k, v in _flatten(st["budget"]).items()}
+        return out

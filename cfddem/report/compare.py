@@ -21,7 +21,9 @@ left, centre and right sensors; streamwise and spanwise surface velocity across 
 z = 0, 0.2, 0.4, 0.6 m; depth profiles of streamwise velocity (whole width, or left and right
 halves when the frame rotates) and of solid fraction in the left, centre and right slices; a top
 view of the flow coloured by the surface velocity with the gas velocity above the bed as arrows
-(when a run has gas); wall time of both runs and their cost split.
+(when a run has gas); wall time of both runs and their cost split.  Left and right are seen in
+the direction of flow (the x = 0 side is the right; :mod:`cfddem.measure.chute`), and the report
+says so in one line (:data:`cfddem.measure.chute.CONVENTION`).
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CaseError
-from ..measure.chute import side_seen_downstream
+from ..measure.chute import CENTRE, CONVENTION, SIDE_AT_X0, SIDE_AT_XW, sensor_names, side_label, x_label
 
 END_LENGTH = 0.1  # m: "velocity at the chute end" = mean over the last 0.1 m
 STATIONS = (0.0, 0.2, 0.4, 0.6)
@@ -109,6 +111,14 @@ class Run:
         return float(np.mean(v[sel])) if sel.any() else math.nan
 
 
+def _width(run) -> float:
+    """The chute width: the case's ``geometry.width``, else the last measurement cell edge."""
+    w = run.config.get("geometry", {}).get("width")
+    if w is None and "x_edges" in run.chute:
+        w = np.asarray(run.chute["x_edges"])[-1]
+    return float(w) if w is not None else math.nan
+
+
 def _station_index(z_centres, z):
     return int(np.argmin(np.abs(np.asarray(z_centres) - z)))
 
@@ -131,22 +141,21 @@ def _fig_velocity(runs, path):
 
 def _fig_bed(runs, path):
     plt = _mpl()
-    fig, axes = plt.subplots(1, 3, figsize=(12, 3.8), sharey=True)
-    names = ("left", "centre", "right")
-    for i, ax in enumerate(axes):
+    x = np.asarray(runs[0].chute["sensor_x"])
+    W = _width(runs[0])
+    names = sensor_names(x, W)
+    order = np.argsort(-x)  # as seen looking down the chute: left, centre, right
+    fig, axes = plt.subplots(1, len(x), figsize=(4 * len(x), 4.2), sharey=True, squeeze=False)
+    for ax, i in zip(axes[0], order):
         for r in runs:
-            bh = np.asarray(r.chute["bed_height_sensor"])
-            if i < bh.shape[0]:
-                ax.plot(r.chute["sensor_z"], 1e3 * bh[i], label=r.label)
-        x = np.asarray(runs[0].chute["sensor_x"])
-        W = float(runs[0].config.get("geometry", {}).get("width", 2 * x[1] if len(x) > 1 else 0.08))
-        ax.set_title(f"'{names[i]}' sensor, x = {1e3 * x[i]:.0f} mm\n({side_seen_downstream(x[i], W)} side "
-                     "seen looking downstream)" if i < len(x) else names[i], fontsize=10)
+            ax.plot(r.chute["sensor_z"], 1e3 * np.asarray(r.chute["bed_height_sensor"])[i], label=r.label)
+        ax.set_title(f"{side_label(names[i], W)}\nsensor at x = {1e3 * x[i]:.0f} mm", fontsize=10)
         ax.set_xlabel("z [m]")
         ax.grid(alpha=0.3)
-    axes[0].set_ylabel("bed height [mm]")
-    axes[0].legend()
-    fig.tight_layout()
+    axes[0, 0].set_ylabel("bed height [mm]")
+    axes[0, 0].legend()
+    fig.text(0.5, 0.005, CONVENTION, ha="center", va="bottom", fontsize=7)
+    fig.tight_layout(rect=(0, 0.04, 1, 1))
     fig.savefig(path, dpi=120)
     plt.close(fig)
 
@@ -161,7 +170,7 @@ def _fig_surface(runs, path):
             axes[0, j].plot(x, np.asarray(r.chute["surface_vz"])[:, k], marker=".", label=r.label)
             axes[1, j].plot(x, np.asarray(r.chute["surface_vx"])[:, k], marker=".", label=r.label)
         axes[0, j].set_title(f"z = {zs:g} m")
-        axes[1, j].set_xlabel("x across the chute [mm]")
+        axes[1, j].set_xlabel(x_label(_width(runs[0])), fontsize=7)
         for a in axes[:, j]:
             a.grid(alpha=0.3)
     axes[0, 0].set_ylabel("streamwise surface velocity [m/s]")
@@ -175,8 +184,8 @@ def _fig_surface(runs, path):
 def _fig_profiles(runs, path):
     plt = _mpl()
     rotating = any(r.rpm != 0 for r in runs)
-    vel_slices = ("left_half", "right_half") if rotating else ("whole",)
-    phi_slices = ("left", "centre", "right")
+    vel_slices = (f"{SIDE_AT_XW}_half", f"{SIDE_AT_X0}_half") if rotating else ("whole",)
+    phi_slices = (SIDE_AT_XW, CENTRE, SIDE_AT_X0)
     st = np.asarray(runs[0].chute["stations"])
     fig, axes = plt.subplots(2, len(st), figsize=(13, 7), sharey=True)
     axes = np.atleast_2d(axes)
@@ -187,15 +196,13 @@ def _fig_profiles(runs, path):
             for sl, c in zip(vel_slices, ("C0", "C1")):
                 key = f"profile_{sl}_vz"
                 if key in r.chute:
-                    rng = np.asarray(r.chute.get(f"slice_{sl}", [np.nan, np.nan]), float)
-                    W = float(r.config.get("geometry", {}).get("width", np.nan))
-                    side = side_seen_downstream(float(rng.mean()), W) if np.all(np.isfinite(rng)) else ""
                     axes[0, j].plot(np.asarray(r.chute[key])[j], y, ls, color=c,
-                                    label=f"{r.label}, {sl}" + (f" ({side} seen downstream)" if rotating else ""))
+                                    label=f"{r.label}, {side_label(sl, _width(r))}")
             for sl, c in zip(phi_slices, ("C2", "C3", "C4")):
                 key = f"profile_{sl}_phi"
                 if key in r.chute:
-                    axes[1, j].plot(np.asarray(r.chute[key])[j], y, ls, color=c, label=f"{r.label}, {sl}")
+                    axes[1, j].plot(np.asarray(r.chute[key])[j], y, ls, color=c,
+                                    label=f"{r.label}, {side_label(sl, _width(r))}")
         axes[0, j].set_title(f"z = {st[j]:g} m")
         axes[0, j].set_xlabel("streamwise velocity [m/s]")
         axes[1, j].set_xlabel("solid fraction [-]")
@@ -250,7 +257,7 @@ def _fig_top(runs, path):
             ax.set_title(f"{r.label}: surface speed,\ngas velocity below the open top (arrows)", fontsize=9)
         else:
             ax.set_title(f"{r.label}: surface speed", fontsize=9)
-        ax.set_xlabel("x [mm]")
+        ax.set_xlabel(x_label(_width(r)), fontsize=7)
     axes[0].invert_yaxis()  # shared y axis: invert once; the entrance at the top
     axes[0].set_ylabel("z down the chute [m]")
     fig.colorbar(im, ax=list(axes), label="surface particle speed [m/s]")
@@ -433,7 +440,8 @@ def compare_runs(a: str | Path, b: str | Path, out: str | Path, labels=(None, No
     md = [f"# {ra.label} against {rb.label}", "",
           f"- A: `{ra.folder}` ({ra.label}, {ra.rpm:g} rpm); B: `{rb.folder}` ({rb.label}, {rb.rpm:g} rpm)",
           f"- mean streamwise particle velocity over the last {END_LENGTH:g} m: A {va:.4f} m/s, "
-          f"B {vb:.4f} m/s, relative difference (B - A)/A = {100 * summary['relative_difference_end']:+.2f} %"]
+          f"B {vb:.4f} m/s, relative difference (B - A)/A = {100 * summary['relative_difference_end']:+.2f} %",
+          f"- {CONVENTION} (the x = 0 wall is the right wall)"]
     tail = _budget_section(runs, summary) if ra.budget and rb.budget else []
     for r, tag in zip(runs, ("a", "b")):
         if r.gas_budget:
@@ -527,7 +535,7 @@ def _budget_section(runs, summary: dict) -> list[str]:
     label = dict(BUDGET_ROWS)
     for k in names:
         (a, ea), (b, eb) = tots[0].get(k, (math.nan, math.nan)), tots[1].get(k, (math.nan, math.nan))
-        nm = label.get(k, f"wall '{k[5:]}'")
+        nm = label.get(k, f"wall '{side_label(k[5:], _width(ra))}'")
         md.append(f"| {nm} | {1e3 * a:.4g} ± {1e3 * ea:.2g} | {1e3 * b:.4g} ± {1e3 * eb:.2g} | {1e3 * (b - a):+.3g} |")
     md.append("")
     pair = _gas_run(runs)

@@ -20,7 +20,6 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 DPI = 120
-SENSOR_LABELS = ("left", "centre", "right")
 SURFACE_STATIONS = (0.0, 0.2, 0.4, 0.6)
 log = logging.getLogger("cfddem.report")
 
@@ -40,22 +39,28 @@ def _save(fig, path) -> Path:
     return path
 
 
+def _width(meas: dict) -> float:
+    """The chute width: the last measurement cell edge (NaN without cells)."""
+    return float(np.asarray(meas["x_edges"])[-1]) if "x_edges" in meas else float("nan")
+
+
 def plot_bed_height(meas: dict, path) -> Path:
-    """Sensor bed height (left / centre / right) along the chute."""
+    """Sensor bed height along the chute, one line per sensor, named by its side seen in
+    the direction of flow (left, centre, right; :mod:`cfddem.measure.chute`)."""
     sx, sz, h = _need(meas, "sensor_x", "sensor_z", "bed_height_sensor")
-    from cfddem.measure.chute import side_seen_downstream
+    from cfddem.measure.chute import CONVENTION, sensor_names, side_label
 
     fig, ax = plt.subplots(figsize=(7, 4))
-    W = float(np.asarray(meas["x_edges"])[-1]) if "x_edges" in meas else 2.0 * float(np.mean(sx))
-    for j in range(h.shape[0]):
-        lab = SENSOR_LABELS[j] if h.shape[0] == 3 else f"sensor {j}"
-        ax.plot(sz * 1e3, h[j] * 1e3, marker=".",
-                label=f"'{lab}', x = {sx[j] * 1e3:.0f} mm ({side_seen_downstream(sx[j], W)} seen downstream)")
+    W = _width(meas)
+    names = sensor_names(sx, W)
+    for j in np.argsort(-sx):  # left, centre, right
+        ax.plot(sz * 1e3, h[j] * 1e3, marker=".", label=f"{side_label(names[j], W)}, x = {sx[j] * 1e3:.0f} mm")
     ax.set_xlabel("z along the chute [mm]")
     ax.set_ylabel("bed height [mm]")
     ax.set_title("Bed height (5 x 5 cell sensor average)")
     ax.grid(alpha=0.3)
     ax.legend()
+    fig.text(0.5, -0.02, CONVENTION, ha="center", va="top", fontsize=7)
     return _save(fig, path)
 
 
@@ -84,8 +89,10 @@ def plot_surface_velocity(meas: dict, path, stations=SURFACE_STATIONS) -> Path:
         a2.plot(x * 1e3, vx[:, k], marker=".", label=f"z = {s:g} m")
     a1.set_ylabel("streamwise surface velocity v_z [m/s]")
     a2.set_ylabel("spanwise surface velocity v_x [m/s]")
+    from cfddem.measure.chute import x_label
+
     for a in (a1, a2):
-        a.set_xlabel("x across the chute [mm]")
+        a.set_xlabel(x_label(_width(meas)), fontsize=8)
         a.grid(alpha=0.3)
         a.legend()
     fig.suptitle("Surface velocity (mean of the 6 topmost particles per cell)")
@@ -147,8 +154,12 @@ def plot_series(series: dict, path) -> Path:
 
 def plot_depth_profiles(meas: dict, path, slices=("left", "centre", "right", "whole")) -> Path:
     """Streamwise velocity and solid fraction against height, one column per station,
-    one line per slice (those present among ``slices`` and the halves)."""
+    one line per slice (those present among ``slices`` and the halves), labelled with its
+    side seen in the direction of flow."""
+    from cfddem.measure.chute import side_label
+
     stations, y = _need(meas, "stations", "profile_y")
+    W = _width(meas)
     names = [s for s in list(slices) + ["left_half", "right_half"]
              if f"profile_{s}_vz" in meas and f"profile_{s}_phi" in meas]
     if not names:
@@ -157,8 +168,8 @@ def plot_depth_profiles(meas: dict, path, slices=("left", "centre", "right", "wh
     fig, axes = plt.subplots(2, ns, figsize=(3.2 * ns + 1, 7), squeeze=False, sharey=True)
     for j, s in enumerate(stations):
         for name in names:
-            axes[0, j].plot(np.asarray(meas[f"profile_{name}_vz"])[j], y * 1e3, label=name)
-            axes[1, j].plot(np.asarray(meas[f"profile_{name}_phi"])[j], y * 1e3, label=name)
+            axes[0, j].plot(np.asarray(meas[f"profile_{name}_vz"])[j], y * 1e3, label=side_label(name, W))
+            axes[1, j].plot(np.asarray(meas[f"profile_{name}_phi"])[j], y * 1e3, label=side_label(name, W))
         axes[0, j].set_title(f"z = {s:g} m")
         axes[0, j].set_xlabel("streamwise velocity [m/s]")
         axes[1, j].set_xlabel("solid volume fraction [-]")

@@ -3,8 +3,9 @@
 exit plane, measured by bed height, surface velocity and depth profiles; with gas, the air
 between the side walls up to ``gas.height``.
 
-Axes: x across the chute (0..width), y normal to the floor (floor at y = 0), z down the chute
-(entrance at ``geometry.z_start``, measurement origin at z = 0).
+Axes (right-handed): x across the chute (0..width), y normal to the floor (floor at y = 0), z down
+the chute (entrance at ``geometry.z_start``, measurement origin at z = 0).  Sides are named as seen
+in the direction of flow (:mod:`cfddem.measure.chute`): the x = 0 wall is the right wall.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import math
 import numpy as np
 
 from ..errors import CaseError
+from ..measure.chute import SIDE_AT_X0, SIDE_AT_XW
 from ..schema import INF, Key
 from ..schema import nonneg as _nonneg
 from ..schema import number as _f
@@ -57,8 +59,11 @@ class ChuteScene(Scene):
         },
         "measurements": {
             "stations": Key("floats", [0.0, 0.2, 0.4, 0.6], "m", "streamwise positions z of the cross-width profiles"),
-            "sensors_x": Key("floats", [0.015, 0.045, 0.065], "m", "x of the left, centre and right bed-height sensors",
-                             length=3),
+            "sensors_x": Key("floats", [0.015, 0.035, 0.065], "m", "x of the three bed-height sensors, each named by "
+                             "its side seen in the direction of flow: right below 0.4 width (the x = 0 side), centre "
+                             "within 0.1 width of the centre line, left above; the default (0.015 m from either wall, "
+                             "and 0.035 m) mirrors physics.md's 0.015, 0.045, 0.065 m counted from its left wall, "
+                             "our x = width", length=3),
             "cell_x": _pos(0.005, "m", "measurement cell size across the chute"),
             "cell_z": _pos(0.006, "m", "measurement cell size along the chute"),
             "n_top": Key("int", 6, "-", "topmost particles per cell for the surface velocity", lo=1),
@@ -112,9 +117,9 @@ class ChuteScene(Scene):
         walls = [
             WallSpec("floor", "rectangle", np.array([0.5 * W, 0.0, zc]), np.array([0.0, 1.0, 0.0]),
                      np.array([1.0, 0.0, 0.0]), (0.5 * W, 0.5 * L)),
-            WallSpec("left", "rectangle", np.array([0.0, 0.5 * H, zc]), np.array([1.0, 0.0, 0.0]),
+            WallSpec(SIDE_AT_X0, "rectangle", np.array([0.0, 0.5 * H, zc]), np.array([1.0, 0.0, 0.0]),
                      np.array([0.0, 1.0, 0.0]), (0.5 * H, 0.5 * L)),
-            WallSpec("right", "rectangle", np.array([W, 0.5 * H, zc]), np.array([-1.0, 0.0, 0.0]),
+            WallSpec(SIDE_AT_XW, "rectangle", np.array([W, 0.5 * H, zc]), np.array([-1.0, 0.0, 0.0]),
                      np.array([0.0, 1.0, 0.0]), (0.5 * H, 0.5 * L)),
         ]
         if geo.back_wall:
@@ -247,7 +252,7 @@ class ChuteScene(Scene):
             speed_scale=max(vin, wind, 1e-12),
             notes=[f"gas inlet velocity {vin:.4g} m/s; lid: {gcfg.lid} (max cross-wind {wind:.3g} m/s); "
                    f"min porosity: computed at run time (cells below 0.3 are counted in the end-of-run summary)"],
-            budget_axis=2, side_names={"x-": "side wall x-", "x+": "side wall x+", "y-": "floor", "y+": f"lid ({gcfg.lid})",
+            budget_axis=2, side_names={"x-": f"{SIDE_AT_X0} side wall", "x+": f"{SIDE_AT_XW} side wall", "y-": "floor", "y+": f"lid ({gcfg.lid})",
                                        "z-": "inlet", "z+": "outlet"})
 
     @classmethod

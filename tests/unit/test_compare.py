@@ -66,6 +66,8 @@ def test_compare_report_and_summary(tmp_path):
         assert (out / f).stat().st_size > 5000, f
     md = (out / "report.md").read_text()
     assert "-5.00 %" in md
+    assert ("- axes right-handed, x across, y up from the floor, z down the chute; positive rpm = counter-clockwise "
+            "seen from above; left/right seen in the direction of flow (the x = 0 wall is the right wall)") in md
     assert s["gas_solver_a"] is None and s["gas_solver_b"]["gas_steps"] == 2188
     assert ("gas solver (with gas): 2188 gas steps, pressure CG iterations mean 6.61 (max 7), mass-balance "
             "defect at most 2.88e-09, Courant number at most 0.475") in md
@@ -143,3 +145,32 @@ def test_compare_silo_report_from_its_measurements(tmp_path):
     p = subprocess.run([sys.executable, "-m", "cfddem.cli", "compare", str(c), str(b), "--out", str(tmp_path / "x")],
                        capture_output=True, text=True)
     assert p.returncode == 2 and "cannot compare a chute run" in p.stderr
+
+
+def test_compare_reads_a_run_written_before_the_sides_with_todays_names(tmp_path):
+    """A run folder from before the side names (x = 0 side called "left", no ``sides``
+    attribute) is read with the x = 0 side as the right, and compares with a run written now."""
+    import h5py
+
+    from cfddem.measure.chute import _renamed
+    from cfddem.report.compare import Run, compare_runs
+
+    old = fake_run(tmp_path / "old", 2.0, False, 100.0)
+    new = Run(fake_run(tmp_path / "new", 2.0, False, 100.0))
+    with h5py.File(old / "results.h5", "a") as f:  # rename as the old writer named them (the swap is its own inverse)
+        g = f["measurements/chute"]
+        moves = {k: _renamed(k, ("profile_", "slice_")) for k in g}
+        for k in moves:
+            g.move(k, "tmp_" + k)
+        for k, b in moves.items():
+            g.move("tmp_" + k, b)
+        del g.attrs["sides"]
+        g.attrs["sensor_names"] = "left,centre,right"
+    with h5py.File(old / "results.h5", "r") as f:
+        assert f["measurements/chute/slice_left"][0] == 0.0  # the x = 0 slice, by its old name
+    r = Run(old)
+    for k in ("slice_right", "slice_left_half", "profile_right_phi", "profile_left_half_vz"):
+        np.testing.assert_array_equal(r.chute[k], new.chute[k])
+    np.testing.assert_array_equal(r.chute["slice_right"], [0.0, 0.025])
+    s = compare_runs(old, tmp_path / "new", tmp_path / "cmp")
+    assert s["relative_difference_end"] == pytest.approx(0.0, abs=1e-12)

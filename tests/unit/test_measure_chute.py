@@ -64,7 +64,7 @@ def test_bed_height_sensors_uniform_and_linear():
     lin = a + bx * c.x_centres[:, None] + bz * c.z_centres[None, :]
     zs = np.array([0.05, 0.123, 0.2])
     s = bed_height_sensors(lin, c, sensor_z=zs)
-    expect = a + bx * np.array([0.015, 0.045, 0.065])[:, None] + bz * zs[None, :]
+    expect = a + bx * np.array([0.015, 0.035, 0.065])[:, None] + bz * zs[None, :]  # the default sensors
     np.testing.assert_allclose(s, expect, rtol=1e-12)
     # a NaN cell is left out; a sensor whose cells are all NaN gives NaN
     lin[2, :] = np.nan
@@ -159,9 +159,11 @@ def test_depth_profile_misaligned_window_error_is_edge_noise():
 
 
 def test_default_slices():
+    """Named as seen in the direction of flow: the x = 0 side is the right."""
     s = default_slices(W)
-    assert s["left"] == (0.0, 0.025) and s["right"] == (0.055, 0.08)
-    assert s["centre"] == pytest.approx((0.0275, 0.0525)) and s["left_half"] == (0.0, 0.04)
+    assert s["right"] == (0.0, 0.025) and s["left"] == (0.055, 0.08)
+    assert s["centre"] == pytest.approx((0.0275, 0.0525))
+    assert s["right_half"] == (0.0, 0.04) and s["left_half"] == (0.04, 0.08)
 
 
 def test_time_averager_nan_weights_start_state():
@@ -234,9 +236,96 @@ def test_chute_measurements_steady_state_and_restart(tmp_path):
     np.testing.assert_array_equal(back["surface_vz"], r["surface_vz"])
 
 
-def test_side_seen_downstream():
-    """x = 0 is on the right of an observer facing down the chute (right = z x y = -x)."""
-    from cfddem.measure.chute import side_seen_downstream
+def test_sides_seen_in_the_direction_of_flow():
+    """x = 0 is on the right of an observer facing down the chute (right = z x y = -x); the
+    default sensors are physics.md's (0.015, 0.045, 0.065 m from the left wall, x = W) mirrored."""
+    from cfddem.measure.chute import SENSOR_X, sensor_names, side_label, side_of, x_label
 
     assert np.cross([0, 0, 1.0], [0, 1.0, 0]) @ [1.0, 0, 0] == -1.0  # right = -x
-    assert [side_seen_downstream(x, 0.08) for x in (0.015, 0.045, 0.065)] == ["right", "middle", "left"]
+    assert sensor_names(SENSOR_X, W) == ["right", "centre", "left"]
+    np.testing.assert_allclose(sorted(W - np.array([0.015, 0.045, 0.065])), SENSOR_X, atol=1e-15)
+    assert [side_of(x, W) for x in (0.0, 0.031, 0.0321, 0.045, 0.0479, 0.08)] == \
+        ["right", "right", "centre", "centre", "centre", "left"]
+    assert side_label("right", W) == "right (x = 0 side)"
+    assert side_label("left_half", W) == "left half (x = 80 mm side)"
+    assert side_label("centre", W) == "centre" and side_label("floor", W) == "floor"
+    assert x_label(W) == "x across the chute [mm] (x = 0: right wall, x = 80 mm: left wall)"
+
+
+def _old_file(path, rng):
+    """A results file as written before the sides were named in the direction of flow: the
+    x = 0 slice, half and wall called "left", sensor names "left,centre,right" at x = 0.015,
+    0.045, 0.065, no ``sides`` attribute."""
+    pos, vel, rad = _flow(rng)
+    pos[:, 0] *= 0.5  # every particle on the x = 0 half
+    cm = ChuteMeasurements(W, (0.0, 0.3), start_time=0.0, stations=(0.05, 0.2), sensor_x=(0.015, 0.045, 0.065))
+    cm.measure(0.0, pos, vel, rad)
+    r = cm.results()
+    swap = {"right": "left", "left": "right", "right_half": "left_half", "left_half": "right_half"}
+    old = {}
+    for k, v in r.items():
+        for new, was in sorted(swap.items(), key=lambda kv: -len(kv[0])):
+            for pre in ("profile_", "slice_"):
+                if k.startswith(pre + new + "_") or k == pre + new:
+                    k = pre + was + k[len(pre + new):]
+                    break
+            else:
+                continue
+            break
+        old[k] = v
+    at = cm.attrs()
+    del at["sides"]
+    at["sensor_names"] = "left,centre,right"
+    with ResultsFile(path) as rf:
+        rf.write_measurements("chute", old, at)
+        rf.write_measurements("momentum_budget", {"wall_left": np.array([-2.0]), "wall_left_err": np.array([0.1]),
+                                                  "wall_right": np.array([-0.5]), "wall_floor": np.array([-3.0])})
+    return r
+
+
+def test_results_written_before_the_sides_are_read_with_todays_names(tmp_path):
+    rng = np.random.default_rng(3)
+    r = _old_file(tmp_path / "old.h5", rng)
+    m = read_measurements(tmp_path / "old.h5", with_attrs=True)
+    ch, at = m["chute"], m["chute"]["@attrs"]
+    assert at["sensor_names"] == "right,centre,left" and at["sides_swapped_on_read"] == 1
+    # the x = 0 slice and half are the right ones again, with all the solid in the right half
+    np.testing.assert_array_equal(ch["slice_right"], [0.0, 0.025])
+    np.testing.assert_array_equal(ch["slice_right_half"], [0.0, 0.04])
+    np.testing.assert_array_equal(ch["profile_right_half_phi"], r["profile_right_half_phi"])
+    np.testing.assert_array_equal(ch["profile_left_phi"], r["profile_left_phi"])
+    assert np.nansum(ch["profile_right_half_phi"]) > 0.1 and np.nansum(ch["profile_left_half_phi"]) == 0.0
+    b = m["momentum_budget"]
+    assert b["wall_right"][0] == -2.0 and b["wall_right_err"][0] == 0.1 and b["wall_left"][0] == -0.5
+    assert b["wall_floor"][0] == -3.0
+    # without attributes the same names; a file written now is read as written
+    assert read_measurements(tmp_path / "old.h5")["chute"].keys() == {k for k in ch if k != "@attrs"}
+    cm = ChuteMeasurements(W, (0.0, 0.3), start_time=0.0, stations=(0.05, 0.2))
+    pos, vel, rad = _flow(rng)
+    cm.measure(0.0, pos, vel, rad)
+    with ResultsFile(tmp_path / "new.h5") as rf:
+        rf.write_measurements("chute", cm.results(), cm.attrs())
+    new = read_measurements(tmp_path / "new.h5", with_attrs=True)["chute"]
+    assert "sides_swapped_on_read" not in new["@attrs"] and new["@attrs"]["sensor_names"] == "right,centre,left"
+    np.testing.assert_array_equal(new["slice_right"], [0.0, 0.025])
+
+
+def test_checkpoint_before_the_sides_resumes_into_the_same_sums():
+    """An older checkpoint's averages of the x = 0 slice ("left" then) continue as "right"."""
+    rng = np.random.default_rng(5)
+    pos, vel, rad = _flow(rng)
+    cm = ChuteMeasurements(W, (0.0, 0.3), start_time=0.0, stations=(0.05, 0.2))
+    cm.measure(0.0, pos, vel, rad)
+    st = cm.get_state()
+    old = {k.replace("/right/", "/@/").replace("/left/", "/right/").replace("/@/", "/left/")
+           .replace("/right_half/", "/@/").replace("/left_half/", "/right_half/").replace("/@/", "/left_half/"): v
+           for k, v in st.items() if k != "sides_flow_seen"}
+    full = {"measure": old, "budget": {"rows": {"wall_left": np.ones((1, 2)), "wall_right": np.zeros((1, 2))}}}
+    up = ChuteMeasurements.upgrade_checkpoint(full)
+    cm2 = ChuteMeasurements(W, (0.0, 0.3), start_time=0.0, stations=(0.05, 0.2))
+    cm2.set_state(up["measure"])
+    for k, v in cm.results().items():
+        np.testing.assert_array_equal(cm2.results()[k], v)
+    np.testing.assert_array_equal(up["budget"]["rows/wall_right"], np.ones((1, 2)))
+    np.testing.assert_array_equal(up["budget"]["rows/wall_left"], np.zeros((1, 2)))
+    assert ChuteMeasurements.upgrade_checkpoint({"measure": st}) == {"measure": st}
