@@ -478,6 +478,15 @@ def _overlaps(bb, others, pad: float = 1.0) -> bool:
                for o in others)
 
 
+def text_box(t, renderer):
+    """The box of a text in display pixels; of an annotation, its text's without the leader line."""
+    from matplotlib.text import Annotation, Text
+
+    if isinstance(t, Annotation):
+        t.update_positions(renderer)
+    return Text.get_window_extent(t, renderer)
+
+
 def place_labels(ax, points, texts, renderer, avoid=(), **kw):
     """Annotate each point (data coordinates) with its text, at the first of a ring of offsets
     (growing distance, eight directions) where the text's box overlaps no text placed before,
@@ -518,7 +527,7 @@ def place_labels(ax, points, texts, renderer, avoid=(), **kw):
         r, opts = best
         arrow = dict(arrowstyle="-", color="0.5", lw=0.7, shrinkA=0, shrinkB=3) if r > 12 else None
         a = ax.annotate(text, p, fontsize=FONT, annotation_clip=False, arrowprops=arrow, **opts, **kw)
-        placed.append(a.get_window_extent(renderer))
+        placed.append(text_box(a, renderer))
         anns.append(a)
     return anns
 
@@ -546,10 +555,28 @@ def draw_chart(result: dict):
              ("surface_velocity_rel_rms", "surface velocity deviation [%]", 100.0)]
     if any(np.isfinite(e.get("gas_velocity_rel_rms", np.nan)) and not e["reference"] for e in sets):
         specs.append(("gas_velocity_rel_rms", "gas velocity deviation [%]", 100.0))
-    w_panel, w_table = 3.7, 4.6
+    # the settings table (right of the panels): its cells, their widths measured in points
+    order = sorted(range(len(sets)), key=lambda i: (nums[i] != "R", int(nums[i]) if nums[i].isdigit() else 0))
+    rows = [("#", "setting", "wall [s]", "in bands")]
+    for i in order:
+        e = sets[i]
+        if e["status"] == "failed":
+            lab = f"{e['label']}: {e['reason']}"
+        else:
+            lab = e["label"] + (f" ({e['n_replicas']} runs)" if e["n_replicas"] > 1 else "")
+        rows.append((nums[i], _shorten(lab, 48), f"{e['wall_time']:.3g}" if np.isfinite(e["wall_time"]) else "-",
+                     "-" if e["status"] == "failed" else ("yes" if e["within_bands"] else "no")))
+    legend = ["R: the reference (black diamond)", "grey squares: its replicas, each against the others",
+              "grey band: its run-to-run scatter" if fl["n_replicas"] >= 2 else "no replicas: scatter unknown",
+              "green band: experimental error", "blue / orange: inside / outside the bands",
+              "red x: failed or unstable"]
+    gap = 8.0  # points between the columns
+    widths = [max(_text_width(r[c], bold=True) for r in rows) + gap for c in range(4)]
+    w_table = max(sum(widths), max(_text_width(t) for t in legend)) / 72 + 0.5
+    w_panel = 3.7
     fig_w = w_panel * len(specs) + w_table
-    # room for the table: its rows and the legend's six lines, 1.45 lines of 9 pt each
-    fig_h = max(5.0, (len(sets) + 8) * FONT * 1.45 / 72 / 0.68)
+    # room for the table: its rows and the legend's lines, 1.45 lines of 9 pt each
+    fig_h = max(5.0, (len(rows) + len(legend) + 1) * FONT * 1.45 / 72 / 0.68)
     fig = plt.figure(figsize=(fig_w, fig_h), dpi=100)
     left, right_edge = 0.75 / fig_w, (fig_w - w_table) / fig_w
     gs = fig.add_gridspec(1, len(specs), left=left, right=right_edge, bottom=0.22, top=0.9, wspace=0.42)
@@ -595,40 +622,23 @@ def draw_chart(result: dict):
                 txt.append(n)
         ax.set_xscale("log")
         ax.set_xlim(*xlim)
+        _wall_ticks(ax, xlim)
         ax.set_ylim(0, top)
         ax.set_xlabel("wall time [s]", fontsize=10)
         ax.set_ylabel(ylabel, fontsize=10)
         ax.tick_params(labelsize=FONT)
         ax.grid(alpha=0.3)
         labels += place_labels(ax, pts, txt, renderer, color="0.1", fontweight="bold")
-    # the settings table: columns placed by their measured widths
     tax = fig.add_axes([right_edge + 0.35 / fig_w, 0.22, (w_table - 0.45) / fig_w, 0.68])
     tax.axis("off")
-    order = sorted(range(len(sets)), key=lambda i: (nums[i] != "R", int(nums[i]) if nums[i].isdigit() else 0))
-    rows = [("#", "setting", "wall [s]", "in bands")]
-    for i in order:
-        e = sets[i]
-        if e["status"] == "failed":
-            lab = f"{e['label']}: {e['reason']}"
-        else:
-            lab = e["label"] + (f" ({e['n_replicas']} runs)" if e["n_replicas"] > 1 else "")
-        rows.append((nums[i], _shorten(lab, 44), f"{e['wall_time']:.3g}" if np.isfinite(e["wall_time"]) else "-",
-                     "-" if e["status"] == "failed" else ("yes" if e["within_bands"] else "no")))
     colors = ["k"] + ["tab:red" if sets[i]["status"] == "failed" else "k" for i in order]
-    dy = renderer.points_to_pixels(FONT * 1.45) / tax.get_window_extent(renderer).height
-    to_axes = tax.transAxes.inverted()
+    dy = FONT * 1.45 / 72 / (0.68 * fig_h)
     x = 0.0
     for c in range(4):
-        col = [tax.text(x, 1.0 - j * dy, row[c], fontsize=FONT, va="top", color=colors[j],
-                        fontweight="bold" if j == 0 else "normal", transform=tax.transAxes)
-               for j, row in enumerate(rows)]
-        labels += col
-        right = max(t.get_window_extent(renderer).x1 for t in col) + renderer.points_to_pixels(8)
-        x = to_axes.transform((right, 0))[0]
-    legend = ["R: the reference (black diamond)", "grey squares: its replicas, each against the others",
-              "grey band: its run-to-run scatter" if fl["n_replicas"] >= 2 else "no replicas: scatter unknown",
-              "green band: experimental error", "blue / orange: inside / outside the bands",
-              "red x: failed or unstable"]
+        labels += [tax.text(x, 1.0 - j * dy, row[c], fontsize=FONT, va="top", color=colors[j],
+                            fontweight="bold" if j == 0 else "normal", transform=tax.transAxes)
+                   for j, row in enumerate(rows)]
+        x += widths[c] / 72 / (w_table - 0.45)
     for j, line in enumerate(legend):
         labels.append(tax.text(0.0, 1.0 - (len(rows) + 0.6 + j) * dy, line, fontsize=FONT, va="top", color="0.3",
                                transform=tax.transAxes))
@@ -637,6 +647,31 @@ def draw_chart(result: dict):
     wrap = textwrap.fill("Verdict: " + result["verdict"], width=int((fig_w - 1.0) * 13))
     fig.text(0.75 / fig_w, 0.03, wrap, fontsize=10, va="bottom")
     return fig, labels
+
+
+def _wall_ticks(ax, xlim) -> None:
+    """Wall-time ticks written plainly (200, 500, 1000) at 1-2-5 steps, or 1-1.5-2-3-5-7 steps
+    when the range holds fewer than three of those; no minor tick labels."""
+    from matplotlib.ticker import FixedLocator, FuncFormatter, NullFormatter
+
+    e0, e1 = int(math.floor(math.log10(xlim[0]))), int(math.ceil(math.log10(xlim[1])))
+    for mant in ((1, 2, 5), (1, 1.5, 2, 3, 5, 7), (1, 1.2, 1.5, 2, 2.5, 3, 4, 5, 6, 7, 8, 9)):
+        ticks = [m * 10.0**e for e in range(e0, e1 + 1) for m in mant if xlim[0] <= m * 10.0**e <= xlim[1]]
+        if len(ticks) >= 3:
+            break
+    ax.xaxis.set_major_locator(FixedLocator(ticks))
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.xaxis.set_minor_formatter(NullFormatter())
+
+
+def _text_width(s: str, bold: bool = False) -> float:
+    """The width of a text at the chart's font size, in points."""
+    from matplotlib.backends.backend_agg import RendererAgg
+    from matplotlib.font_manager import FontProperties
+
+    w, _, _ = RendererAgg(10, 10, 72).get_text_width_height_descent(
+        s, FontProperties(size=FONT, weight="bold" if bold else "normal"), ismath=False)
+    return float(w)
 
 
 def _shorten(s: str, n: int) -> str:
