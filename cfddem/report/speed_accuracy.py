@@ -329,8 +329,12 @@ def speed_accuracy(sweep_dir: str | Path, reference: str | None = None, out: str
         s["wall_time"] = float(np.mean([_num(by_name[n].get("wall_time")) for n in (s["runs"] or s["names"])]))
     done = [s for s in settings if s["runs"]]
     if reference is None:
-        if "time.dt" in varied:
-            ref = min(done, key=lambda s: _num(s["values"]["time.dt"]))
+        if "time.dt" in varied:  # the smallest time step run (an empty cell: the case's), then the dearest
+            def dt(s):
+                d = _num(runs[s["runs"][0]].config.get("time", {}).get("dt", s["values"]["time.dt"]))
+                return (d if np.isfinite(d) else math.inf, -s["wall_time"])
+
+            ref = min(done, key=dt)
         else:
             ref = max(done, key=lambda s: s["wall_time"])
     else:
@@ -566,10 +570,11 @@ def draw_chart(result: dict):
             lab = e["label"] + (f" ({e['n_replicas']} runs)" if e["n_replicas"] > 1 else "")
         rows.append((nums[i], _shorten(lab, 48), f"{e['wall_time']:.3g}" if np.isfinite(e["wall_time"]) else "-",
                      "-" if e["status"] == "failed" else ("yes" if e["within_bands"] else "no")))
-    legend = ["R: the reference (black diamond)", "grey squares: its replicas, each against the others",
-              "grey band: its run-to-run scatter" if fl["n_replicas"] >= 2 else "no replicas: scatter unknown",
-              "green band: experimental error", "blue / orange: inside / outside the bands",
-              "red x: failed or unstable"]
+    legend = ["R: the reference (black diamond)"]
+    legend += (["grey squares: its replicas, each against the others", "grey band: its run-to-run scatter"]
+               if fl["n_replicas"] >= 2 else ["no replicas of it: scatter unknown"])
+    legend += ["green band: experimental error", "blue / orange: inside / outside the bands"]
+    legend += ["red x: failed or unstable"] if any(e["status"] == "failed" for e in sets) else []
     gap = 8.0  # points between the columns
     widths = [max(_text_width(r[c], bold=True) for r in rows) + gap for c in range(4)]
     w_table = max(sum(widths), max(_text_width(t) for t in legend)) / 72 + 0.5
