@@ -588,7 +588,6 @@ def draw_chart(result: dict):
     axes = [fig.add_subplot(gs[0, i]) for i in range(len(specs))]
     renderer = fig.canvas.get_renderer()
     ok = [e for e in sets if e["status"] == "done"]
-    bad = [e for e in sets if e["status"] == "failed"]
     walls = [e["wall_time"] for e in sets if np.isfinite(e["wall_time"]) and e["wall_time"] > 0]
     lo, hi = (min(walls), max(walls)) if walls else (1.0, 10.0)
     xlim = (lo / 1.6, hi * 1.6)
