@@ -61,7 +61,8 @@ def _parser() -> argparse.ArgumentParser:
 
     acc = sub.add_parser("accuracy", help="speed against accuracy chart of a sweep folder")
     acc.add_argument("sweep_dir", help="a folder written by cfddem sweep")
-    acc.add_argument("--reference", help="the variant (folder name) taken as the most accurate run")
+    acc.add_argument("--reference", help="a variant (folder name) of the setting taken as the most accurate one "
+                                         "(with its replicas)")
     acc.add_argument("--out", help="output folder (default: the sweep folder)")
 
     blr = sub.add_parser("blending-report", help="one report (concentration, VRR, RTD, velocity maps, cost) of a "
@@ -186,14 +187,10 @@ def _dispatch(args) -> int:
         print(f"report: {out / 'report.md'}, {out / 'report.html'}, {out / 'summary.json'}")
         return 0
     if args.command == "accuracy":
-        from .report.speed_accuracy import speed_accuracy
+        from .report.speed_accuracy import markdown, speed_accuracy
 
         res = speed_accuracy(args.sweep_dir, reference=args.reference, out=args.out)
-        print(f"reference: {res['reference']}")
-        for e in res["rows"]:
-            print(f"  {e['name']}: {e['status']}, wall {e['wall_time']:.1f} s, bed height RMS "
-                  f"{e['bed_height_rms_mm']:.3f} mm, surface velocity RMS {100 * e['surface_velocity_rel_rms']:.2f} %"
-                  + (" (within the experimental error)" if e.get("within_bands") else ""))
+        print(markdown(res), end="")
         return 0
     if args.command == "blending-report":
         from .report.blending import blending_report

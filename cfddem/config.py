@@ -86,6 +86,13 @@ SCHEMA: dict[str, dict] = {
                           "folder (its newest checkpoint); the time step, contact parameters, coupling interval... "
                           "may differ (a branch from a developed flow); averages start afresh; relative to the case "
                           "folder"),
+        "perturb_velocity": Key("float", 0.0, "m/s", "replicas of a branch: add to every free particle (not held "
+                                "feeds) a random velocity of this root-mean-square magnitude when the run starts from "
+                                "checkpoint.start_from, drawn with checkpoint.perturb_seed, zero net momentum; the "
+                                "chaotic flow amplifies a tiny one (1e-6) into an independent replica (0: off)",
+                                lo=0.0, hi=INF, hi_open=True),
+        "perturb_seed": Key("int", 0, "-", "seed of checkpoint.perturb_velocity: branches with the same seed are "
+                            "identical, with different seeds independent replicas", lo=0),
     },
     "gravity": {
         "g": _nonneg(9.81, "m/s^2", "magnitude of gravity"),
@@ -599,6 +606,8 @@ def _check_consistency(r: dict, case_dir: Path) -> None:
         if "label" in t and (isinstance(t["label"], bool) or not isinstance(t["label"], int)):
             raise CaseError(f"{key}.label", f"{t['label']!r} must be an integer (a tracer label)")
     sf = r["checkpoint"]["start_from"]
+    if r["checkpoint"]["perturb_velocity"] > 0 and not sf:
+        raise CaseError("checkpoint.perturb_velocity", "perturbs a branch: set checkpoint.start_from too")
     if sf:
         f = case_dir / sf
         if not f.exists():

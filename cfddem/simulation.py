@@ -342,6 +342,11 @@ class Simulation:
             else:
                 gas_note = "; gas starts afresh (the source run had none)"
         self.branched_from = str(path)
+        ck = self.case.checkpoint
+        if ck.perturb_velocity > 0:
+            k = self.system.perturb_velocities(ck.perturb_velocity, ck.perturb_seed)
+            gas_note += (f"; velocities of {k} free particles perturbed by {ck.perturb_velocity:g} m/s RMS "
+                         f"(checkpoint.perturb_seed = {ck.perturb_seed})")
         return f"branched from {path} at t = {t:.6g} s (step {self.system.step_count}, {self.system.n} particles)" \
                f"{gas_note}"
 

@@ -782,6 +782,46 @@ class ParticleSystem:
         """(n,) bool: particles moving at a set velocity, unaffected by forces (a feed)."""
         return self._held[: self.n].astype(bool)
 
+    def perturb_velocities(self, rms: float, seed: int) -> int:
+        """Add a seeded random velocity to every free unit - a free sphere (not held, not a clump
+        member) or a clump none of whose centre-of-mass components is held (all its members
+        move with it, its spin unchanged) - such that the mass-weighted mean of the added
+        velocities is zero (no net momentum) and their root-mean-square magnitude over the units
+        is ``rms`` exactly (with one unit: ``rms``, no mean removal).  The draws go to the units
+        in the order of their particle ids (a clump: its first member's), so the result does not
+        depend on the storage order.  Returns the number of units perturbed."""
+        n = self.n
+        body = self._body[:n]
+        ids = self._ids[:n]
+        free = np.flatnonzero((body < 0) & (self._held[:n] == 0))
+        keys, masses = [ids[free]], [self._mass[:n][free]]
+        bodies = np.zeros(0, np.int64)
+        if self._has_clumps():
+            c = self.clumps
+            bodies = np.flatnonzero(np.all(c.vfix == 0.0, axis=1))
+            keys.append(ids[c.members[c.start[bodies]]])
+            masses.append(c.mass[bodies])
+        key, mass = np.concatenate(keys), np.concatenate(masses)
+        m = len(key)
+        if m == 0 or rms <= 0.0:
+            return 0
+        order = np.argsort(key, kind="stable")
+        draw = np.random.default_rng(int(seed)).standard_normal((m, 3))  # in id order
+        if m > 1:
+            mo = mass[order]
+            draw -= (mo[:, None] * draw).sum(axis=0) / mo.sum()
+        draw *= rms / np.sqrt(np.mean(np.sum(draw * draw, axis=1)))
+        dv = np.empty_like(draw)
+        dv[order] = draw
+        nf = len(free)
+        self._vel[:n][free] += dv[:nf]
+        if len(bodies):
+            c = self.clumps
+            c.vel[bodies] += dv[nf:]
+            for j, b in enumerate(bodies):
+                self._vel[:n][c.members[c.start[b]:c.start[b + 1]]] += dv[nf + j]
+        return m
+
     def release(self, mask) -> int:
         """Let the held particles where ``mask`` is True move under forces from now on; returns
         how many were released."""
