@@ -243,6 +243,137 @@ def scaling_check(table: list[dict], tol: float) -> dict:
     return {"max_deviation": dev, "tol": tol, "ok": bool(len(w) > 1 and dev <= tol)}
 
 
+COLUMNS = [("d_mm", "d (mm)", "{:g}"), ("W_noair", "W no air (g/s)", "{:.4g}"), ("W_air", "W air (g/s)", "{:.4g}"),
+           ("ratio", "W_air / W_noair", "{:.3f}"), ("ratio_err", "+-", "{:.3f}"), ("n_air", "fills", "{:d}"),
+           ("Wstar_noair", "W* no air", "{:.3f}"), ("Wstar_air", "W* air", "{:.3f}"),
+           ("W_beverloo", "Beverloo (g/s)", "{:.4g}"), ("darcy_ratio", "u_D / sqrt(g b)", "{:.3g}"),
+           ("air_force_ratio_r1", "air force / weight, R = b", "{:.3f}"),
+           ("air_force_ratio_r2", "R = 2 b", "{:.3f}"), ("slot_air_ratio", "air in through slot / bead volume flow",
+                                                          "{:.2f}"),
+           ("wall_air", "wall air (s, loaded)", "{:.0f}"), ("wall_noair", "wall no air (s, loaded)", "{:.0f}")]
+GRAMS = ("W_noair", "W_air", "W_beverloo")
+
+
+def _cell(t: dict, key: str, fmt: str) -> str:
+    v = t.get(key, math.nan)
+    if isinstance(v, float) and not math.isfinite(v):
+        return "-"
+    return fmt.format(v * 1e3 if key in GRAMS else v)
+
+
+def write_report(out, tol: float = 0.05) -> tuple[list[Path], dict]:
+    """``silo_air.csv`` (one row per run), ``silo_air.md`` (one row per diameter),
+    ``silo_air_flow.png`` and ``silo_air_outlet.png`` in ``out`` (module doc); returns the
+    files and :func:`scaling_check`."""
+    out = Path(out)
+    runs = find_runs(out)
+    if not runs:
+        raise CaseError("report", f"no finished runs under {out}/d=*mm/")
+    fit = fit_beverloo_c([r for r in runs if not r["gas"] and not r["clogged"]])
+    fit_air = fit_beverloo_c([r for r in runs if r["gas"] and not r["clogged"]])
+    table = diameter_table(runs, fit)
+    check = scaling_check(table, tol)
+    keys = list(dict.fromkeys(k for r in runs for k in r))
+    with open(out / "silo_air.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, keys)
+        w.writeheader()
+        w.writerows(runs)
+    md = ["# Silo discharge of fine beads with and without air (silo scaled with d)", "",
+          f"- Beverloo, 2D slot, k = {fit['k']:g} fixed (b / d = {runs[0]['b'] / runs[0]['d']:g} in every run: "
+          f"only C (b/d - k)^1.5 is determined): C = {fit['C']:.4g} +- {fit['C_err']:.2g} from {fit['n_runs']} runs "
+          "without air",
+          f"- power law W ~ d^n: n = {fit['exponent']:.3f} without air (2.5 if W* does not depend on d), "
+          f"n = {fit_air['exponent']:.3f} with air",
+          f"- scaling check: W* without air the same at every d within {tol:.0%}: largest deviation "
+          f"{check['max_deviation']:.1%}, {'PASS' if check['ok'] else 'FAIL'}",
+          "- W* = W / (rho_b sqrt(g) L (b - 1.5 d)^1.5), rho_b measured at the gate opening; +- the standard error "
+          "of the ratio from the fills' scatter (the runs with and without air are not paired); "
+          "u_D = k_Ergun rho_b g / mu; outlet: the air's drag and pressure force on the beads within R of the slot "
+          "centre (up) over their weight, and the air drawn in through the slot over the beads' volume flow W / rho_p",
+          "", "| " + " | ".join(c[1] for c in COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
+    md += ["| " + " | ".join(_cell(t, k, f) for k, _, f in COLUMNS) + " |" for t in table]
+    (out / "silo_air.md").write_text("\n".join(md) + "\n")
+    files = [out / "silo_air.csv", out / "silo_air.md", _flow_chart(table, runs, fit, out / "silo_air_flow.png"),
+             _outlet_chart(table, out / "silo_air_outlet.png")]
+    return files, check
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _flow_chart(table, runs, fit, path: Path) -> Path:
+    plt = _plt()
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 4.2))
+    for gas, mk, lab in ((False, "s", "without air"), (True, "o", "with air")):
+        rr = [r for r in runs if r["gas"] == gas and not r["clogged"]]
+        a1.plot([r["d"] * 1e3 for r in rr], [r["W"] * 1e3 for r in rr], mk, mfc="none", label=f"{lab} (each fill)")
+    d = np.array([t["d_mm"] for t in table]) * 1e-3
+    r0 = runs[0]
+    dd = np.geomspace(d.min() / 1.3, d.max() * 1.3, 50)
+    rho_b = float(np.nanmean([t["rho_b"] for t in table]))
+    bev = fit["C"] * rho_b * math.sqrt(r0["g"]) * (r0["L"] / r0["d"] * dd) * ((r0["b"] / r0["d"] - fit["k"]) * dd) ** 1.5
+    a1.plot(dd * 1e3, bev * 1e3, "k-", lw=1, label=f"Beverloo C = {fit['C']:.3g}, k = {fit['k']:g} (fit, no air)")
+    a1.set_xscale("log")
+    a1.set_yscale("log")
+    a1.set_xlabel("bead diameter d (mm); silo scaled with d")
+    a1.set_ylabel("mass flow rate W (g/s)")
+    a1.grid(alpha=0.3, which="both")
+    a1.legend(fontsize=8)
+    x = [t["d_mm"] for t in table]
+    y = [t["ratio"] for t in table]
+    e = [t["ratio_err"] if math.isfinite(t["ratio_err"]) else 0.0 for t in table]
+    a2.errorbar(x, y, yerr=e, fmt="o-", capsize=4, label="W_air / W_noair (bars: replicas' standard error)")
+    a2.axhline(1.0, color="k", lw=0.8)
+    a2.set_xscale("log")
+    a2.set_xlabel("bead diameter d (mm)")
+    a2.set_ylabel("W with air / W without")
+    a2.grid(alpha=0.3, which="both")
+    a2.legend(fontsize=8)
+    top = a2.secondary_xaxis("top", functions=(lambda v: v, lambda v: v))
+    top.set_ticks(x)
+    top.set_ticklabels([f"{t['darcy_ratio']:.2g}" for t in table], fontsize=7)
+    top.set_xlabel("u_D / sqrt(g b)", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def _outlet_chart(table, path: Path) -> Path:
+    plt = _plt()
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 4.0))
+    x = [t["d_mm"] for t in table]
+    for key, lab in (("air_force_ratio_r0.5", "R = b/2"), ("air_force_ratio_r1", "R = b"), ("air_force_ratio_r2", "R = 2 b")):
+        a1.plot(x, [t[key] for t in table], "o-", label=lab)
+    a1.axhline(0.0, color="k", lw=0.8)
+    a1.set_xscale("log")
+    a1.set_xlabel("bead diameter d (mm)")
+    a1.set_ylabel("air force on the beads (up) / their weight")
+    a1.set_title("beads within R of the slot centre", fontsize=9)
+    a1.grid(alpha=0.3, which="both")
+    a1.legend(fontsize=8)
+    a2.plot(x, [t["slot_air_ratio"] for t in table], "o-", label="through the slot (up into the silo)")
+    a2.plot(x, [-t["q_top"] / t["q_particles"] if t["q_particles"] > 0 else math.nan for t in table], "s-",
+            label="through the open top (down into the silo)")
+    a2.axhline(0.0, color="k", lw=0.8)
+    a2.set_xscale("log")
+    a2.set_xlabel("bead diameter d (mm)")
+    a2.set_ylabel("air volume flow / beads' volume flow")
+    a2.set_title("where the air that replaces the beads comes from", fontsize=9)
+    a2.grid(alpha=0.3, which="both")
+    a2.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
 def _floats(text: str, key: str) -> list[float]:
     try:
         return [float(x) for x in text.split(",") if x.strip()]
