@@ -164,7 +164,11 @@ def read_run(run_dir) -> dict | None:
            "W": float(m.get("mass_flow_rate", math.nan)), "rho_b": float(m.get("bulk_density", math.nan)),
            "clogged": int(np.asarray(m.get("clogged", 0))), "status": r.get("status", ""),
            "wall": float(r.get("wall_time", math.nan) or math.nan)}
-    o = m.get("silo", {}).get("outlet")
+    sm = m.get("silo", {})
+    dm = np.asarray(sm.get("discharge_mass", []), float)
+    m_fill = int(np.asarray(sm.get("fill_particles", 0))) * row["rho_p"] * math.pi / 6 * row["d"] ** 3
+    row["discharged_fraction"] = float(dm[-1] / m_fill) if len(dm) and m_fill > 0 else math.nan
+    o = sm.get("outlet")
     if o is not None:
         rb = np.asarray(o["radii_in_slot_widths"], float)
         for i, x in enumerate(rb):
@@ -178,6 +182,13 @@ def read_run(run_dir) -> dict | None:
 def find_runs(out) -> list[dict]:
     rows = [read_run(p.parent) for p in sorted(Path(out).glob("d=*mm/*/results.h5"))]
     return [r for r in rows if r is not None]
+
+
+def _flowed(r: dict) -> bool:
+    """A steady flow rate was measured.  A flat-bottomed silo ends with heaps, and a bead left
+    lying in the slot's x range below 2 d at the end flags the run 'clogged' after the
+    discharge; the rate is the fit over fit_range of what did discharge either way."""
+    return math.isfinite(r["W"]) and r["W"] > 0
 
 
 def dimensionless_rate(r: dict, k: float = BEVERLOO_K) -> float:
@@ -211,8 +222,10 @@ def diameter_table(runs: list[dict], fit: dict) -> list[dict]:
     Darcy velocity / discharge speed, the outlet budget (runs with air, R = 1 slot width)."""
     table = []
     for d in sorted({r["d"] for r in runs}):
-        ra = [r for r in runs if r["d"] == d and r["gas"] and not r["clogged"]]
-        rn = [r for r in runs if r["d"] == d and not r["gas"] and not r["clogged"]]
+        ra = [r for r in runs if r["d"] == d and r["gas"] and _flowed(r)]
+        rn = [r for r in runs if r["d"] == d and not r["gas"] and _flowed(r)]
+        if not ra and not rn:
+            continue  # nothing finished at this diameter (yet)
         wa, sa, na = _stats([r["W"] for r in ra])
         wn, sn, nn = _stats([r["W"] for r in rn])
         ratio = wa / wn if wn > 0 else math.nan
@@ -227,6 +240,7 @@ def diameter_table(runs: list[dict], fit: dict) -> list[dict]:
                "n_noair": nn, "ratio": ratio, "ratio_err": ratio_err, "Wstar_air": _stats(
                    [dimensionless_rate(r) for r in ra])[0], "Wstar_noair": _stats([dimensionless_rate(r) for r in rn])[0],
                "W_beverloo": bev, "rho_b": rho_b, "darcy_ratio": u_d / math.sqrt(r0["g"] * r0["b"]),
+               "discharged": _stats([r["discharged_fraction"] for r in ra + rn])[0],
                "wall_air": _stats([r["wall"] for r in ra])[0], "wall_noair": _stats([r["wall"] for r in rn])[0]}
         for k in ("air_force_ratio_r0.5", "air_force_ratio_r1", "air_force_ratio_r2", "drag_r1", "pressure_r1",
                   "weight_r1", "slot_air_ratio", "q_slot", "q_top", "q_particles"):
@@ -250,7 +264,7 @@ COLUMNS = [("d_mm", "d (mm)", "{:g}"), ("W_noair", "W no air (g/s)", "{:.4g}"), 
            ("air_force_ratio_r1", "air force / weight, R = b", "{:.3f}"),
            ("air_force_ratio_r2", "R = 2 b", "{:.3f}"), ("slot_air_ratio", "air in through slot / bead volume flow",
                                                           "{:.2f}"),
-           ("wall_air", "wall air (s, loaded)", "{:.0f}"), ("wall_noair", "wall no air (s, loaded)", "{:.0f}")]
+           ("discharged", "discharged fraction", "{:.2f}"), ("wall_air", "wall air (s, loaded)", "{:.0f}"), ("wall_noair", "wall no air (s, loaded)", "{:.0f}")]
 GRAMS = ("W_noair", "W_air", "W_beverloo")
 
 
@@ -269,8 +283,8 @@ def write_report(out, tol: float = 0.05) -> tuple[list[Path], dict]:
     runs = find_runs(out)
     if not runs:
         raise CaseError("report", f"no finished runs under {out}/d=*mm/")
-    fit = fit_beverloo_c([r for r in runs if not r["gas"] and not r["clogged"]])
-    fit_air = fit_beverloo_c([r for r in runs if r["gas"] and not r["clogged"]])
+    fit = fit_beverloo_c([r for r in runs if not r["gas"] and _flowed(r)])
+    fit_air = fit_beverloo_c([r for r in runs if r["gas"] and _flowed(r)])
     table = diameter_table(runs, fit)
     check = scaling_check(table, tol)
     keys = list(dict.fromkeys(k for r in runs for k in r))
@@ -311,7 +325,7 @@ def _flow_chart(table, runs, fit, path: Path) -> Path:
     plt = _plt()
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 4.2))
     for gas, mk, lab in ((False, "s", "without air"), (True, "o", "with air")):
-        rr = [r for r in runs if r["gas"] == gas and not r["clogged"]]
+        rr = [r for r in runs if r["gas"] == gas and _flowed(r)]
         a1.plot([r["d"] * 1e3 for r in rr], [r["W"] * 1e3 for r in rr], mk, mfc="none", label=f"{lab} (each fill)")
     d = np.array([t["d_mm"] for t in table]) * 1e-3
     r0 = runs[0]
@@ -336,8 +350,11 @@ def _flow_chart(table, runs, fit, path: Path) -> Path:
     a2.grid(alpha=0.3, which="both")
     a2.legend(fontsize=8)
     top = a2.secondary_xaxis("top", functions=(lambda v: v, lambda v: v))
-    top.set_ticks(x)
-    top.set_ticklabels([f"{t['darcy_ratio']:.2g}" for t in table], fontsize=7)
+    from matplotlib.ticker import NullFormatter
+
+    top.set_xticks(x)
+    top.set_xticklabels([f"{t['darcy_ratio']:.2g}" for t in table], fontsize=7)
+    top.xaxis.set_minor_formatter(NullFormatter())
     top.set_xlabel("u_D / sqrt(g b)", fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
