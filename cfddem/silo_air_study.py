@@ -45,6 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import CaseError
+from .silo_prisms import _floats, _plt, _save
 
 CASE = Path(__file__).resolve().parent.parent / "cases" / "silo_air"
 DIAMETERS_MM = (0.25, 0.35, 0.5, 0.7, 1.0, 2.0)
@@ -312,15 +313,6 @@ def write_report(out, tol: float = 0.05) -> tuple[list[Path], dict]:
     return files, check
 
 
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def _flow_chart(table, runs, fit, path: Path) -> Path:
     plt = _plt()
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 4.2))
@@ -362,40 +354,30 @@ def _flow_chart(table, runs, fit, path: Path) -> Path:
     return path
 
 
+def _against_d(ax, ylabel: str, title: str = "") -> None:
+    """A panel against the bead diameter: log x, the zero line, labels, grid, legend."""
+    ax.axhline(0.0, color="k", lw=0.8)
+    ax.set_xscale("log")
+    ax.set_xlabel("bead diameter d (mm)")
+    ax.set_ylabel(ylabel)
+    if title:
+        ax.set_title(title, fontsize=9)
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8)
+
+
 def _outlet_chart(table, path: Path) -> Path:
     plt = _plt()
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 4.0))
     x = [t["d_mm"] for t in table]
     for key, lab in (("air_force_ratio_r0.5", "R = b/2"), ("air_force_ratio_r1", "R = b"), ("air_force_ratio_r2", "R = 2 b")):
         a1.plot(x, [t[key] for t in table], "o-", label=lab)
-    a1.axhline(0.0, color="k", lw=0.8)
-    a1.set_xscale("log")
-    a1.set_xlabel("bead diameter d (mm)")
-    a1.set_ylabel("air force on the beads (up) / their weight")
-    a1.set_title("beads within R of the slot centre", fontsize=9)
-    a1.grid(alpha=0.3, which="both")
-    a1.legend(fontsize=8)
+    _against_d(a1, "air force on the beads (up) / their weight", "beads within R of the slot centre")
     a2.plot(x, [t["slot_air_ratio"] for t in table], "o-", label="through the slot (up into the silo)")
     a2.plot(x, [-t["q_top"] / t["q_particles"] if t["q_particles"] > 0 else math.nan for t in table], "s-",
             label="through the open top (down into the silo)")
-    a2.axhline(0.0, color="k", lw=0.8)
-    a2.set_xscale("log")
-    a2.set_xlabel("bead diameter d (mm)")
-    a2.set_ylabel("air volume flow / beads' volume flow")
-    a2.set_title("where the air that replaces the beads comes from", fontsize=9)
-    a2.grid(alpha=0.3, which="both")
-    a2.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
-
-
-def _floats(text: str, key: str) -> list[float]:
-    try:
-        return [float(x) for x in text.split(",") if x.strip()]
-    except ValueError:
-        raise CaseError(key, f"{text!r}: expected numbers separated by commas") from None
+    _against_d(a2, "air volume flow / beads' volume flow", "where the air that replaces the beads comes from")
+    return _save(fig, path)
 
 
 def main(argv=None) -> int:
