@@ -145,14 +145,14 @@ def ergun_permeability(d: float, eps: float) -> float:
 
 def read_run(run_dir) -> dict | None:
     """One finished run folder: d, gas, seed, W, rho_b, the outlet budget (runs with air),
-    wall time; None if it has no results."""
+    wall time; None if it has no results or is still running."""
     from .io.results import read_measurements
 
     run_dir = Path(run_dir)
     h5 = run_dir / "results.h5"
-    if not h5.is_file():
-        return None
     r = json.loads((run_dir / "run.json").read_text()) if (run_dir / "run.json").is_file() else {}
+    if not h5.is_file() or r.get("status", "running") == "running":
+        return None  # (opening a file that a run is writing would lock it out of its own file)
     import h5py
 
     with h5py.File(h5, "r") as f:
