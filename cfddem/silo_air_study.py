@@ -25,8 +25,8 @@ finished runs reused) in ``OUT/d=<d>mm``.
 ``report`` reads every run and writes into OUT: ``silo_air.csv`` (one row per run),
 ``silo_air.md`` (per diameter: W with and without air, their ratio, W*, the Beverloo rate, the
 Darcy ratio, the outlet budget of the runs with air: the air's force on the particles within
-one slot width of the slot centre against their weight and the air drawn in through the slot
-against the particles' volume flow; wall times), ``silo_air_flow.png`` (W against d with and
+b/2, b and 2 b of the slot centre against their weight, and the air that flows through the slot
+and through the open top against the particles' volume flow; wall times), ``silo_air_flow.png`` (W against d with and
 without air and the Beverloo line, log axes; W_air / W_noair against d) and
 ``silo_air_outlet.png`` (the outlet budget against d).  Since b / d is the same for every run,
 only C (b/d - k)^1.5 is determined: k is fixed at 1.5 and C fitted to the runs without air.
@@ -243,9 +243,10 @@ def diameter_table(runs: list[dict], fit: dict) -> list[dict]:
                "W_beverloo": bev, "rho_b": rho_b, "darcy_ratio": u_d / math.sqrt(r0["g"] * r0["b"]),
                "discharged": _stats([r["discharged_fraction"] for r in ra + rn])[0],
                "wall_air": _stats([r["wall"] for r in ra])[0], "wall_noair": _stats([r["wall"] for r in rn])[0]}
-        for k in ("air_force_ratio_r0.5", "air_force_ratio_r1", "air_force_ratio_r2", "drag_r1", "pressure_r1",
-                  "weight_r1", "slot_air_ratio", "q_slot", "q_top", "q_particles"):
+        for k in ("air_force_ratio_r0.5", "air_force_ratio_r1", "air_force_ratio_r2", "drag_r0.5", "pressure_r0.5",
+                  "weight_r0.5", "slot_air_ratio", "q_slot", "q_top", "q_particles"):
             row[k] = _stats([r.get(k, math.nan) for r in ra])[0]
+        row["top_air_ratio"] = -row["q_top"] / row["q_particles"] if row["q_particles"] > 0 else math.nan
         table.append(row)
     return table
 
@@ -262,10 +263,12 @@ COLUMNS = [("d_mm", "d (mm)", "{:g}"), ("W_noair", "W no air (g/s)", "{:.4g}"), 
            ("ratio", "W_air / W_noair", "{:.3f}"), ("ratio_err", "+-", "{:.3f}"), ("n_air", "fills", "{:d}"),
            ("Wstar_noair", "W* no air", "{:.3f}"), ("Wstar_air", "W* air", "{:.3f}"),
            ("W_beverloo", "Beverloo (g/s)", "{:.4g}"), ("darcy_ratio", "u_D / sqrt(g b)", "{:.3g}"),
-           ("air_force_ratio_r1", "air force / weight, R = b", "{:.3f}"),
-           ("air_force_ratio_r2", "R = 2 b", "{:.3f}"), ("slot_air_ratio", "air in through slot / bead volume flow",
-                                                          "{:.2f}"),
-           ("discharged", "discharged fraction", "{:.2f}"), ("wall_air", "wall air (s, loaded)", "{:.0f}"), ("wall_noair", "wall no air (s, loaded)", "{:.0f}")]
+           ("air_force_ratio_r0.5", "air force / weight, R = b/2", "{:.4f}"),
+           ("air_force_ratio_r1", "R = b", "{:.4f}"), ("air_force_ratio_r2", "R = 2 b", "{:.4f}"),
+           ("slot_air_ratio", "air up through slot / bead volume flow", "{:.2f}"),
+           ("top_air_ratio", "air down through top / bead volume flow", "{:.2f}"),
+           ("discharged", "discharged fraction", "{:.2f}"), ("wall_air", "wall air (s, loaded)", "{:.0f}"),
+           ("wall_noair", "wall no air (s, loaded)", "{:.0f}")]
 GRAMS = ("W_noair", "W_air", "W_beverloo")
 
 
@@ -374,7 +377,7 @@ def _outlet_chart(table, path: Path) -> Path:
         a1.plot(x, [t[key] for t in table], "o-", label=lab)
     _against_d(a1, "air force on the beads (up) / their weight", "beads within R of the slot centre")
     a2.plot(x, [t["slot_air_ratio"] for t in table], "o-", label="through the slot (up into the silo)")
-    a2.plot(x, [-t["q_top"] / t["q_particles"] if t["q_particles"] > 0 else math.nan for t in table], "s-",
+    a2.plot(x, [t["top_air_ratio"] for t in table], "s-",
             label="through the open top (down into the silo)")
     _against_d(a2, "air volume flow / beads' volume flow", "where the air that replaces the beads comes from")
     return _save(fig, path)
