@@ -272,6 +272,12 @@ COLUMNS = [("d_mm", "d (mm)", "{:g}"), ("W_noair", "W no air (g/s)", "{:.4g}"), 
 GRAMS = ("W_noair", "W_air", "W_beverloo")
 
 
+def _pooled(table: list[dict], key: str) -> float:
+    """sqrt of the mean squared relative standard deviation of ``key`` over the rows with a std."""
+    rel = [t[f"{key}_std"] / t[key] for t in table if math.isfinite(t.get(f"{key}_std", math.nan))]
+    return math.sqrt(sum(r * r for r in rel) / len(rel)) if rel else math.nan
+
+
 def _cell(t: dict, key: str, fmt: str) -> str:
     v = t.get(key, math.nan)
     if isinstance(v, float) and not math.isfinite(v):
@@ -302,6 +308,8 @@ def write_report(out, tol: float = 0.05) -> tuple[list[Path], dict]:
           "without air",
           f"- power law W ~ d^n: n = {fit['exponent']:.3f} without air (2.5 if W* does not depend on d), "
           f"n = {fit_air['exponent']:.3f} with air",
+          f"- fill-to-fill scatter of W (relative standard deviation, pooled over the diameters with more than one "
+          f"fill): {_pooled(table, 'W_noair'):.1%} without air, {_pooled(table, 'W_air'):.1%} with air",
           f"- scaling check: W* without air the same at every d within {tol:.0%}: largest deviation "
           f"{check['max_deviation']:.1%}, {'PASS' if check['ok'] else 'FAIL'}",
           "- W* = W / (rho_b sqrt(g) L (b - 1.5 d)^1.5), rho_b measured at the gate opening; +- the standard error "
@@ -328,7 +336,7 @@ def _flow_chart(table, runs, fit, path: Path) -> Path:
     rho_b = float(np.nanmean([t["rho_b"] for t in table]))
     bev = fit["C"] * rho_b * math.sqrt(r0["g"]) * (r0["L"] / r0["d"] * dd) * ((r0["b"] / r0["d"] - fit["k"]) * dd) ** 1.5
     a1.plot(dd * 1e3, bev * 1e3, "k-", lw=1, label=f"Beverloo C = {fit['C']:.3g}, k = {fit['k']:g} (fit, no air)")
-    a1.set_xscale("log")
+    _d_ticks(a1, [t["d_mm"] for t in table])
     a1.set_yscale("log")
     a1.set_xlabel("bead diameter d (mm); silo scaled with d")
     a1.set_ylabel("mass flow rate W (g/s)")
@@ -339,16 +347,17 @@ def _flow_chart(table, runs, fit, path: Path) -> Path:
     e = [t["ratio_err"] if math.isfinite(t["ratio_err"]) else 0.0 for t in table]
     a2.errorbar(x, y, yerr=e, fmt="o-", capsize=4, label="W_air / W_noair (bars: replicas' standard error)")
     a2.axhline(1.0, color="k", lw=0.8)
-    a2.set_xscale("log")
+    _d_ticks(a2, x)
     a2.set_xlabel("bead diameter d (mm)")
     a2.set_ylabel("W with air / W without")
     a2.grid(alpha=0.3, which="both")
     a2.legend(fontsize=8)
     top = a2.secondary_xaxis("top", functions=(lambda v: v, lambda v: v))
-    from matplotlib.ticker import NullFormatter
+    from matplotlib.ticker import NullFormatter, NullLocator
 
     top.set_xticks(x)
     top.set_xticklabels([f"{t['darcy_ratio']:.2g}" for t in table], fontsize=7)
+    top.xaxis.set_minor_locator(NullLocator())
     top.xaxis.set_minor_formatter(NullFormatter())
     top.set_xlabel("u_D / sqrt(g b)", fontsize=8)
     fig.tight_layout()
@@ -357,10 +366,21 @@ def _flow_chart(table, runs, fit, path: Path) -> Path:
     return path
 
 
-def _against_d(ax, ylabel: str, title: str = "") -> None:
+def _d_ticks(ax, x) -> None:
+    """Log x axis with a tick at each diameter (mm), no minor labels."""
+    from matplotlib.ticker import FixedLocator, NullFormatter, NullLocator
+
+    ax.set_xscale("log")
+    ax.xaxis.set_major_locator(FixedLocator(list(x)))
+    ax.xaxis.set_major_formatter(lambda v, _: f"{v:g}")
+    ax.xaxis.set_minor_locator(NullLocator())
+    ax.xaxis.set_minor_formatter(NullFormatter())
+
+
+def _against_d(ax, x, ylabel: str, title: str = "") -> None:
     """A panel against the bead diameter: log x, the zero line, labels, grid, legend."""
     ax.axhline(0.0, color="k", lw=0.8)
-    ax.set_xscale("log")
+    _d_ticks(ax, x)
     ax.set_xlabel("bead diameter d (mm)")
     ax.set_ylabel(ylabel)
     if title:
@@ -375,11 +395,16 @@ def _outlet_chart(table, path: Path) -> Path:
     x = [t["d_mm"] for t in table]
     for key, lab in (("air_force_ratio_r0.5", "R = b/2"), ("air_force_ratio_r1", "R = b"), ("air_force_ratio_r2", "R = 2 b")):
         a1.plot(x, [t[key] for t in table], "o-", label=lab)
-    _against_d(a1, "air force on the beads (up) / their weight", "beads within R of the slot centre")
+    ref = [t for t in table if math.isclose(t["d_mm"], 1.0)] or table[-1:]
+    if ref and math.isfinite(ref[0]["air_force_ratio_r0.5"]):
+        xx = np.geomspace(min(x), max(x), 50)
+        a1.plot(xx, ref[0]["air_force_ratio_r0.5"] * (xx / ref[0]["d_mm"]) ** -1.5, "k--", lw=0.8,
+                label="~ d^-1.5 (Darcy: ~ sqrt(g b) / u_D)")
+    _against_d(a1, x, "air force on the beads (up) / their weight", "beads within R of the slot centre")
     a2.plot(x, [t["slot_air_ratio"] for t in table], "o-", label="through the slot (up into the silo)")
     a2.plot(x, [t["top_air_ratio"] for t in table], "s-",
             label="through the open top (down into the silo)")
-    _against_d(a2, "air volume flow / beads' volume flow", "where the air that replaces the beads comes from")
+    _against_d(a2, x, "air volume flow / beads' volume flow", "where the air that replaces the beads comes from")
     return _save(fig, path)
 
 
