@@ -1,8 +1,8 @@
 """Silo discharge of fine beads with and without air against the bead diameter (issue #20,
 docs/silo-air.md):
 
-    python -m cfddem.silo_air_study run OUT [--diameters 0.25,0.5,1,2] [--replicas-at 0.25,1]
-                                            [--replicas 3] [--workers 2] [--case cases/silo_air]
+    python -m cfddem.silo_air_study run OUT [--diameters 0.125,0.25,0.5,1,2] [--replicas 3]
+                                            [--replicas-at D1,..] [--workers 2] [--case cases/silo_air]
     python -m cfddem.silo_air_study report OUT
 
 ``run`` runs ``cases/silo_air`` at each bead diameter d (mm) with and without air, the silo
@@ -17,7 +17,7 @@ one thing that breaks the similarity.  Without air the dimensionless flow rate
 must then be independent of d (``report`` checks it); with air it falls as d shrinks: the
 bed's permeability ~ d^2 (Ergun), so the Darcy velocity u_D = k_perm rho_b g / mu that the
 weight of the bed can drive through it falls against the discharge speed sqrt(g b) as d^1.5.
-At ``--replicas-at`` diameters the runs are repeated with ``--replicas`` fills in all
+At the ``--replicas-at`` diameters (default: all) the runs are repeated with ``--replicas`` fills in all
 (``particles.seed`` the case's, then +1, +2, ...): their scatter gives the error bars.  Each
 diameter is one sweep (:func:`cfddem.sweep.run_sweep`, Dask, one run folder per variant,
 finished runs reused) in ``OUT/d=<d>mm``.
@@ -48,7 +48,7 @@ from .errors import CaseError
 from .silo_prisms import _floats, _plt, _save
 
 CASE = Path(__file__).resolve().parent.parent / "cases" / "silo_air"
-DIAMETERS_MM = (0.25, 0.35, 0.5, 0.7, 1.0, 2.0)
+DIAMETERS_MM = (0.125, 0.25, 0.5, 1.0, 2.0)
 BEVERLOO_K = 1.5
 
 #: keys scaled by a length factor f: lengths x f, times x sqrt(f), stiffness x f^2, ...
@@ -414,7 +414,7 @@ def main(argv=None) -> int:
     r = sub.add_parser("run", help="run the scaled silo at each diameter with and without air")
     r.add_argument("out", help="study folder")
     r.add_argument("--diameters", default=",".join(f"{d:g}" for d in DIAMETERS_MM), help="bead diameters (mm)")
-    r.add_argument("--replicas-at", default="0.25,1", help="diameters (mm) run with --replicas fills")
+    r.add_argument("--replicas-at", help="diameters (mm) run with --replicas fills (default: every diameter)")
     r.add_argument("--replicas", type=int, default=3, help="fills at the --replicas-at diameters (default 3)")
     r.add_argument("--workers", type=int, default=2, help="runs at once (1 numba thread each; default 2)")
     r.add_argument("--case", default=str(CASE), help="the silo case (default cases/silo_air)")
@@ -427,9 +427,9 @@ def main(argv=None) -> int:
         if args.cmd == "run":
             if args.replicas < 1:
                 raise CaseError("--replicas", f"{args.replicas} must be at least 1")
-            rows = run_study(args.out, _floats(args.diameters, "--diameters"),
-                             _floats(args.replicas_at, "--replicas-at") if args.replicas_at else (),
-                             args.replicas, args.case, args.workers)
+            ds = _floats(args.diameters, "--diameters")
+            at = _floats(args.replicas_at, "--replicas-at") if args.replicas_at is not None else ds
+            rows = run_study(args.out, ds, at, args.replicas, args.case, args.workers)
             return 0 if all(x.get("status") in ("done", "skipped") for x in rows) else 3
         files, check = write_report(args.out, args.tol)
     except CaseError as e:
