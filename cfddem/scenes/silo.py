@@ -245,6 +245,9 @@ SILO_KEYS = {
     "field_cell": _nonneg(0.0, "m", "cell size of the time-averaged x-y velocity field (0: 2 d)"),
     "field_interval": _pos(0.01, "s", "sampling interval of the velocity field during discharge"),
     "field_start": _nonneg(0.1, "s", "velocity field: start averaging this long after the gate opened"),
+    "outlet_radii": Key("floats", [0.5, 1.0, 2.0], "-", "with gas: radii, in slot widths, of the half-discs around "
+                        "the slot's centre (full depth, above the outlet plane) whose particles' air forces and weight "
+                        "/measurements/silo/outlet records (docs/outputs.md)", lo=0.0),
     "channel_fraction": _f(0.1, "-", "flow-channel boundary: where the downward speed falls below this fraction "
                            "of the centreline speed", lo=0.0, lo_open=True, hi=1.0, hi_open=True),
     "front_back": wall_override("front and back walls"),
@@ -635,6 +638,12 @@ class SiloScene(Scene):
         self.ended = ""
         cell = s["field_cell"] or 2 * self.g.d
         self.field = VelocityField(0.0, self.g.W, -self.g.lip, self.g.H, cell)
+        self.outlet = None
+        if self.case.gas.enabled:
+            from ..measure.outlet_budget import OutletBudget
+
+            self.outlet = OutletBudget(self.g.xc, np.asarray(s["outlet_radii"], float) * self.g.b,
+                                       self.case.gravity.g, air=self._air_flows)
         self.probe = (ChannelProbe(self.g.internals, self.g.xc, 0.0, self.g.W, -self.g.lip, self.g.H, cell,
                                    s["fit_range"], s["centreline_heights"])
                       if self.g.internals else None)
@@ -653,6 +662,7 @@ class SiloScene(Scene):
     def start(self) -> None:
         d = self.g.d
         self._fill_friction()
+        self._wire_outlet()
         if self.g.pour:
             self._pour(0.0)
             what = (f"pour of {self.s['n_particles']} particles at {self.s['pour_rate']:g} kg/s (a layer of "
@@ -666,6 +676,27 @@ class SiloScene(Scene):
                           f"opens at {self.s['gate_time']:g} s" if self.s["gate"] == "time" else
                           f"opens when settled (kinetic energy per particle < {self.s['settle_energy']:g} J) "
                           f"from {self.s['gate_time']:g} s")
+
+    def _wire_outlet(self) -> None:
+        """With gas: the coupling hands every gas step's per-particle forces to the outlet budget."""
+        if self.outlet is not None and self.sim.gas is not None:
+            self.sim.gas.force_sink = self.outlet
+
+    def _air_flows(self) -> tuple[float, float, float]:
+        """The air's volume flows (m^3/s, up positive) through the outlet plane and the open top,
+        eps_f v A summed over the faces with the face porosity of the porous continuity equation
+        (:func:`cfddem.gas.operators.porous_divergence_at`), and the air volume sum(eps V)."""
+        gs = self.sim.gas.gas
+        grid, h = gs.grid, gs.grid.halo
+        nx, ny, nz = grid.shape
+        v, e = gs.v.data, gs.eps.data
+        dx, _, dz = grid.spacing
+        xs, zs = slice(h, h + nx), slice(h, h + nz)
+
+        def q(j):  # the y-face between cells j - 1 and j (array indices)
+            return float(np.sum(0.5 * (e[xs, j - 1, zs] + e[xs, j, zs]) * v[xs, j, zs])) * dx * dz
+
+        return q(h), q(h + ny), float(np.sum(e[xs, h:h + ny, zs])) * grid.cell_volume
 
     def _fill_friction(self) -> None:
         """The fill's friction: none (``frictionless_fill``) or ``fill_friction`` between particles."""
@@ -743,6 +774,9 @@ class SiloScene(Scene):
                 self.field.sample(sys_.pos, sys_.vel)
                 if self.probe:
                     self.probe.sample(t, sys_.pos, sys_.vel, sim.counters["mass_out"])
+            if self.outlet is not None:
+                self.outlet.sample(sys_.pos, sys_.mass)
+                self.outlet.close_block(t)
             while self._next_field_time() <= t + half:
                 self.k_field += 1
         if t < self.k_check * self.check_dt - half:
@@ -792,6 +826,8 @@ class SiloScene(Scene):
             sys_.set_friction(True)
         if self.probe:
             self.probe.open(float(sys_.mass.sum()))
+        if self.outlet is not None:
+            self.outlet.open(t)
         self.gate_open_time = t
         self.k_field = 0
         self.rec_t.append(t)
@@ -879,11 +915,32 @@ class SiloScene(Scene):
         }
         if self.probe:
             silo.update(self.probe.measurements())
+        if self.outlet is not None:
+            silo["outlet"] = self.outlet_measurements(fit)
         arrays = {"mass_flow_rate": fit["rate"], "bulk_density": self.fill["bulk_density"],
                   "clogged": np.int64(1 if self.clogged else 0), "silo": silo,
                   "@attrs:mass_flow_rate": {"unit": "kg/s"}, "@attrs:bulk_density": {"unit": "kg/m3"},
                   "@attrs:clogged": {"unit": "0/1"}}
         return None, arrays, {}
+
+    def outlet_measurements(self, fit: dict) -> dict:
+        """/measurements/silo/outlet: the outlet budget's blocks and their means over the flow-rate
+        fit's window (:mod:`cfddem.measure.outlet_budget`), with the particles' volume flow
+        W / rho_p and the ratio of the air drawn in through the slot to it."""
+        o = self.outlet
+        win = o.window(fit["t_lo"], fit["t_hi"]) if math.isfinite(fit["rate"]) else o.window(math.inf, -math.inf)
+        q_p = fit["rate"] / self.case.particles.density
+        blocks = o.arrays()
+        out = {"radii": o.radii, "radii_in_slot_widths": np.asarray(self.s["outlet_radii"], float),
+               "blocks": blocks, "q_particles": q_p,
+               "slot_air_ratio": win["q_slot"] / q_p if q_p > 0 else math.nan,
+               **{f"mean_{k}": v for k, v in win.items()},
+               "@attrs": {"regions": "half-discs (x - xc)^2 + y^2 < R^2, y >= 0, full depth, R = radii (m)",
+                          "window": "the blocks inside the flow-rate fit's window (fit_window t_lo..t_hi)",
+                          "signs": "forces on the particles along y, up positive (N); weight m g positive (N); "
+                                   "q_slot up into the silo through the outlet plane, q_top up out of the open "
+                                   "top (m^3/s); q_particles = mass_flow_rate / particles.density (m^3/s)"}}
+        return out
 
     def get_state(self) -> dict:
         return {"k_check": np.int64(self.k_check), "gate_open_time": self.gate_open_time,
@@ -893,7 +950,8 @@ class SiloScene(Scene):
                 "n_inserted": np.int64(self.n_inserted), "layers_done": np.int64(self.layers_done),
                 "spheres_inserted": np.int64(self.spheres_inserted), "bodies_out": np.int64(self.bodies_out),
                 "fill": {k: (np.asarray(v) if not isinstance(v, (int, float)) else v) for k, v in self.fill.items()},
-                **({"probe": self.probe.get_state()} if self.probe else {})}
+                **({"probe": self.probe.get_state()} if self.probe else {}),
+                **({"outlet": self.outlet.get_state()} if self.outlet is not None else {})}
 
     def set_state(self, d: dict) -> None:
         self.k_check = int(d["k_check"])
@@ -914,6 +972,9 @@ class SiloScene(Scene):
             self._fill_friction()
         if self.probe:
             self.probe.set_state(d["probe"])
+        if self.outlet is not None and "outlet" in d:
+            self.outlet.set_state(d["outlet"])
+        self._wire_outlet()
         for k, v in d["fill"].items():
             self.fill[k] = np.asarray(v, float) if k.startswith("box") else float(v)
 

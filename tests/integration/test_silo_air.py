@@ -24,7 +24,7 @@ pytestmark = pytest.mark.usefixtures("one_numba_thread")
 def test_silo_air_short_run(tmp_path):
     ov = ["silo.n_particles=200", "time.end_time=0.08", 'silo.gate="time"', "silo.gate_time=0.03",
           "output.vtk=false", "output.plots=false", "time.threads=1", "study.compare_without_gas=false",
-          "checkpoint.wall_interval=0", "output.series_interval=0.002"]
+          "checkpoint.wall_interval=0", "output.series_interval=0.002", "silo.field_start=0.005"]
     case = load_case(CASE, overrides=ov)
     sim = Simulation(case, tmp_path / "run", overwrite=True, echo=False, progress=False, threads=1)
     s = sim.run()
@@ -49,6 +49,22 @@ def test_silo_air_short_run(tmp_path):
     meas = read_measurements(tmp_path / "run" / "results.h5")
     assert meas["gas"]["mean_velocity"].shape == (8, 10, 2, 3)
     assert "mass_flow_rate" in meas and "silo" in meas
+    # the outlet budget (blocks every field_interval from the gate opening): the air's volume
+    # flows obey the porous continuity equation, q_slot - q_top = d(air volume)/dt, to the
+    # pressure solve's tolerance; the air volume grows by the beads' volume leaving the gas
+    o = meas["silo"]["outlet"]
+    b = o["blocks"]
+    assert len(b["t_end"]) >= 5 and b["t_start"][0] == pytest.approx(meas["silo"]["gate_open_time"])
+    v_bead = np.pi / 6 * 0.001 ** 3
+    dv = np.diff(b["air_volume"])
+    assert np.allclose(dv, ((b["q_slot"] - b["q_top"]) * b["duration"])[1:], rtol=0, atol=1e-6 * v_bead)
+    assert b["air_volume"][-1] - b["air_volume"][0] > 0.5 * v_bead
+    # the weight in each half-disc is its sampled bead count times m g; the largest (2 b = 12 mm)
+    # holds more beads than the smallest; the air's forces are finite
+    m_bead = 2500.0 * v_bead
+    assert np.allclose(b["weight"], b["count"] * m_bead * 9.81, rtol=1e-12)
+    assert np.all(b["count"][:, 2] >= b["count"][:, 0]) and b["count"][:, 2].max() > 0
+    assert np.all(np.isfinite(b["drag"])) and np.all(np.isfinite(b["pressure"]))
 
 
 def test_silo_air_check_and_hopper_refused():
