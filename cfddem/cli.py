@@ -5,7 +5,7 @@
     cfddem compare RUN_A RUN_B [--out DIR]
     cfddem sweep CASE --vary KEY=V1,V2,... [--scheduler ADDRESS] [--workers N]
     cfddem stability CASE --vary KEY=V1,V2,... [--vary ...] [--out DIR]   (or --map drag|courant|cells)
-    cfddem accuracy SWEEP_DIR [--reference NAME]
+    cfddem accuracy SWEEP_DIR [--reference NAME] [--floor-from NAME]
     cfddem beverloo SILO_CASE --widths B1,B2,... [--set K=V]... [--out DIR] [--workers N]
     cfddem coarse-grain RUN_DIR_OR_CHECKPOINT [--spacing H] [--width W] [--out DIR] [--janssen MU_SIDE,MU_FRONT --phi DEG]
     cfddem report OUT
@@ -63,6 +63,8 @@ def _parser() -> argparse.ArgumentParser:
     acc.add_argument("sweep_dir", help="a folder written by cfddem sweep")
     acc.add_argument("--reference", help="a variant (folder name) of the setting taken as the most accurate one "
                                          "(with its replicas)")
+    acc.add_argument("--floor-from", help="a variant whose setting's replicas give the run-to-run scatter when "
+                                          "the reference is not repeated (e.g. the case's step, cheaper to repeat)")
     acc.add_argument("--out", help="output folder (default: the sweep folder)")
 
     blr = sub.add_parser("blending-report", help="one report (concentration, VRR, RTD, velocity maps, cost) of a "
@@ -189,7 +191,7 @@ def _dispatch(args) -> int:
     if args.command == "accuracy":
         from .report.speed_accuracy import markdown, speed_accuracy
 
-        res = speed_accuracy(args.sweep_dir, reference=args.reference, out=args.out)
+        res = speed_accuracy(args.sweep_dir, reference=args.reference, out=args.out, floor_from=args.floor_from)
         print(markdown(res), end="")
         return 0
     if args.command == "blending-report":

@@ -212,13 +212,15 @@ def noise_floor(fields: list[dict]) -> tuple[dict, list[dict]]:
     return floor, loo
 
 
-def uncertainty(floor: float, k: int, m: int) -> float:
+def uncertainty(floor: float, k: int, m: int, k_ref: int | None = None) -> float:
     """Run-to-run uncertainty of the deviation of a setting with ``m`` replicas from the mean of
-    ``k`` reference replicas whose leave-one-out floor is ``floor`` (module docstring); 0
-    without a floor."""
+    ``k_ref`` reference replicas (default ``k``), the floor ``floor`` measured as the
+    leave-one-out floor of ``k`` replicas (of the reference, or of the setting named by
+    ``--floor-from``; module docstring); 0 without a floor."""
     if k < 2 or not np.isfinite(floor):
         return 0.0
-    return float(floor * math.sqrt((k - 1) / k) * math.sqrt(1.0 / m + 1.0 / k))
+    k_ref = k if k_ref is None else k_ref
+    return float(floor * math.sqrt((k - 1) / k) * math.sqrt(1.0 / m + 1.0 / k_ref))
 
 
 # ------------------------------------------------------------------------------- settings
@@ -285,7 +287,8 @@ def _fmt_dev(m: str, d: float, u: float) -> str:
     return f"{100 * d:.2f} ± {100 * u:.2f} %" if u > 0 else f"{100 * d:.2f} %"
 
 
-def _verdict(settings: list[dict], ref: dict, floor_known: bool, n_ref: int) -> tuple[str, dict | None]:
+def _verdict(settings: list[dict], ref: dict, floor_known: bool, n_ref: int,
+             floor_of: str | None = None) -> tuple[str, dict | None]:
     inside = [s for s in settings if s["within_bands"] and np.isfinite(s["wall_time"])]
     bands = f"(bed height {BED_BAND_MM:g} mm, surface velocity {100 * VELOCITY_BAND:g} %)"
     if not inside:
@@ -302,16 +305,22 @@ def _verdict(settings: list[dict], ref: dict, floor_known: bool, n_ref: int) -> 
     if not floor_known:
         tail = "run-to-run scatter unknown (no replicas of the reference)"
     elif best["distinguishable"]:
-        tail = "distinguishable from the reference's run-to-run scatter"
+        tail = ("distinguishable from the reference's run-to-run scatter" if floor_of is None else
+                f"distinguishable from the run-to-run scatter ({n_ref} replicas of {floor_of})")
     else:
-        tail = f"not distinguishable from the reference's run-to-run scatter ({n_ref} replicas)"
+        tail = (f"not distinguishable from the reference's run-to-run scatter ({n_ref} replicas)" if floor_of is None
+                else f"not distinguishable from the run-to-run scatter ({n_ref} replicas of {floor_of})")
     return (f"cheapest inside the experimental bands {bands}: {best['label']} ({best['wall_time']:.3g} s, "
             f"{speed:.3g}x faster than the reference); {devs}; {tail}"), best
 
 
-def speed_accuracy(sweep_dir: str | Path, reference: str | None = None, out: str | Path | None = None) -> dict:
+def speed_accuracy(sweep_dir: str | Path, reference: str | None = None, out: str | Path | None = None,
+                   floor_from: str | None = None) -> dict:
     """Compute the deviations of every variant and setting, write the chart and the tables;
-    returns the result (also written as ``speed_accuracy.json``)."""
+    returns the result (also written as ``speed_accuracy.json``).  ``floor_from``: a variant
+    whose setting's replicas give the noise floor instead of the reference's (when the
+    reference is too dear to repeat; the floor is then that setting's run-to-run scatter, said
+    so on the chart and in the tables)."""
     sweep_dir = Path(sweep_dir)
     out = Path(out) if out else sweep_dir
     out.mkdir(parents=True, exist_ok=True)
@@ -346,8 +355,18 @@ def speed_accuracy(sweep_dir: str | Path, reference: str | None = None, out: str
     fields = {n: _fields(r) for n, r in runs.items() if r is not None}
     ref_fields = [fields[n] for n in ref["runs"]]
     ref_mean = mean_fields(ref_fields, "the reference")
-    k = len(ref_fields)
-    floor, loo = noise_floor(ref_fields)
+    k_ref = len(ref_fields)
+    fsrc = ref
+    if floor_from is not None:
+        cand = [s for s in done if floor_from in s["runs"]]
+        if not cand or len(cand[0]["runs"]) < 2:
+            raise CaseError("--floor-from", f"{floor_from!r} is not a finished variant of a setting with at "
+                                            "least two finished replicas")
+        fsrc = cand[0]
+    k = len(fsrc["runs"])
+    floor, loo = noise_floor([fields[n] for n in fsrc["runs"]])
+    if fsrc is not ref:
+        loo = [{m: 0.0 for m in MEASURES} for _ in ref["runs"]]
     t_c_ref = _collision_time(runs[ref["runs"][0]])
     contact_varied = any(v.startswith(("contact.", "particles.")) for v in varied)
 
@@ -385,7 +404,7 @@ def speed_accuracy(sweep_dir: str | Path, reference: str | None = None, out: str
                  else field_deviations(ref_mean, mean_fields([fields[n] for n in s["runs"]], e["label"])))
             for mm in MEASURES:
                 e[mm] = d[mm]
-                e[mm + "_unc"] = 0.0 if is_ref else uncertainty(floor[mm], k, m)
+                e[mm + "_unc"] = 0.0 if is_ref else uncertainty(floor[mm], k, m, k_ref)
             e["within_bands"] = is_ref or all(e[mm] + e[mm + "_unc"] <= b for mm, b in BANDS.items())
             e["distinguishable"] = (not is_ref and k >= 2
                                     and any(abs(e[mm]) > DISTINCT_FACTOR * e[mm + "_unc"] for mm in BANDS))
@@ -399,12 +418,14 @@ def speed_accuracy(sweep_dir: str | Path, reference: str | None = None, out: str
             e.update({mm + "_unc": math.nan for mm in MEASURES})
         out_settings.append(e)
     ref_e = out_settings[settings.index(ref)]
-    verdict, best = _verdict(out_settings, ref_e, k >= 2, k)
+    floor_label = out_settings[settings.index(fsrc)]["label"]
+    verdict, best = _verdict(out_settings, ref_e, k >= 2, k, None if fsrc is ref else floor_label)
     for e in out_settings:
         e["verdict"] = verdict if e is best else ""
     result = {"reference": ref["runs"][0], "reference_setting": ref_e["label"], "reference_runs": ref["runs"],
               "varied": varied, "replica_keys": list(REPLICA_KEYS), "rows": table, "settings": out_settings,
-              "noise_floor": {"n_replicas": k, **floor}, "verdict": verdict,
+              "noise_floor": {"n_replicas": k, **floor, "setting": floor_label, "of_reference": fsrc is ref},
+              "verdict": verdict,
               "verdict_setting": best["setting"] if best is not None else None,
               "bands": {"bed_height_mm": BED_BAND_MM, "surface_velocity_rel": VELOCITY_BAND}}
     (out / "speed_accuracy.json").write_text(json.dumps(result, indent=1, allow_nan=True))
@@ -433,10 +454,13 @@ def markdown(result: dict) -> str:
     fl = result["noise_floor"]
     k = fl["n_replicas"]
     lines = ["# Speed against accuracy", "", f"**Verdict:** {result['verdict']}", "",
-             f"Reference: {result['reference_setting']} ({k} run{'s' if k != 1 else ''}: "
+             f"Reference: {result['reference_setting']} ({len(result['reference_runs'])} "
+             f"run{'s' if len(result['reference_runs']) != 1 else ''}: "
              + ", ".join(result["reference_runs"]) + ")."]
     if k >= 2:
-        lines += ["", "Noise floor (RMS deviation of a reference replica from the mean of the others): bed height "
+        whose = "a reference replica" if fl.get("of_reference", True) else \
+            f"one of the {k} replicas of {fl.get('setting')} (the reference is not repeated)"
+        lines += ["", f"Noise floor (RMS deviation of {whose} from the mean of the others): bed height "
                   f"{fl['bed_height_rms_mm']:.3g} mm, surface velocity {100 * fl['surface_velocity_rel_rms']:.3g} %"
                   + (f", gas velocity {100 * fl['gas_velocity_rel_rms']:.3g} %"
                      if np.isfinite(fl["gas_velocity_rel_rms"]) else "") + "."]
@@ -571,8 +595,13 @@ def draw_chart(result: dict):
         rows.append((nums[i], _shorten(lab, 48), f"{e['wall_time']:.3g}" if np.isfinite(e["wall_time"]) else "-",
                      "-" if e["status"] == "failed" else ("yes" if e["within_bands"] else "no")))
     legend = ["R: the reference (black diamond)"]
-    legend += (["grey squares: its replicas, each against the others", "grey band: its run-to-run scatter"]
-               if fl["n_replicas"] >= 2 else ["no replicas of it: scatter unknown"])
+    of_ref = fl.get("of_reference", True)
+    if fl["n_replicas"] >= 2 and of_ref:
+        legend += ["grey squares: its replicas, each against the others", "grey band: its run-to-run scatter"]
+    elif fl["n_replicas"] >= 2:
+        legend += [f"grey band: run-to-run scatter of {fl['n_replicas']} replicas", f"  of {_shorten(str(fl['setting']), 40)}"]
+    else:
+        legend += ["no replicas of it: scatter unknown"]
     legend += ["green band: experimental error", "blue / orange: inside / outside the bands"]
     legend += ["red x: failed or unstable"] if any(e["status"] == "failed" for e in sets) else []
     gap = 8.0  # points between the columns
@@ -592,7 +621,8 @@ def draw_chart(result: dict):
     lo, hi = (min(walls), max(walls)) if walls else (1.0, 10.0)
     xlim = (lo / 1.6, hi * 1.6)
     labels = []
-    ref_rows = [r for r in result["rows"] if r["name"] in result["reference_runs"]]
+    ref_rows = [r for r in result["rows"] if r["name"] in result["reference_runs"]] \
+        if fl.get("of_reference", True) else []
     for ax, (key, ylabel, scale) in zip(axes, specs):
         band = BANDS.get(key)
         top = max([band * 1.3 if band is not None else 0.0, fl.get(key, 0.0) * 1.3 if np.isfinite(fl.get(key, np.nan))

@@ -266,3 +266,34 @@ def test_labels_do_not_overlap(tmp_path):
     import matplotlib.pyplot as plt
 
     plt.close(fig)
+
+
+def test_floor_from_the_replicas_of_another_setting(tmp_path):
+    """The reference (1e-5) run once, the cheaper 2e-5 three times with bed offsets +a, -a, 0
+    around 0.3 mm: ``floor_from`` takes the floor from the 2e-5 replicas (a sqrt(1.5)), their
+    setting's deviation is their mean's (0.3 mm) with u = s sqrt(1/3 + 1/1), s = a, and the
+    chart and tables say whose scatter it is; a setting with one run is refused as the source."""
+    from cfddem.errors import CaseError
+    from cfddem.report.speed_accuracy import speed_accuracy
+
+    sweep = tmp_path / "sweep"
+    sweep.mkdir()
+    a = 0.2
+    rows = [["1e-05", "", "done", 800, ""]] + [["2e-05", j, "done", 200, ""] for j in (1, 2, 3)] \
+        + [["4e-05", "", "done", 100, ""]]
+    names = write_summary(sweep, COLS, rows)
+    for n, r, off in zip(names, rows, [0.0, 0.3 + a, 0.3 - a, 0.3, 1.0]):
+        synth_run(sweep / n, r[3], bed_mm=off)
+    res = speed_accuracy(sweep, floor_from=names[1], out=tmp_path / "out")
+    fl = res["noise_floor"]
+    assert fl["n_replicas"] == 3 and not fl["of_reference"] and fl["setting"].startswith("dt")
+    assert fl["bed_height_rms_mm"] == pytest.approx(a * np.sqrt(1.5), rel=1e-9)
+    s2 = next(x for x in res["settings"] if x["values"]["time.dt"] == "2e-05")
+    assert s2["bed_height_rms_mm"] == pytest.approx(0.3, rel=1e-9)
+    assert s2["bed_height_rms_mm_unc"] == pytest.approx(a * np.sqrt(1 / 3 + 1), rel=1e-9)
+    s4 = next(x for x in res["settings"] if x["values"]["time.dt"] == "4e-05")
+    assert s4["bed_height_rms_mm_unc"] == pytest.approx(a * np.sqrt(2.0), rel=1e-9)
+    assert "replicas of" in res["verdict"]
+    assert "replicas of" in (tmp_path / "out" / "speed_accuracy.md").read_text()
+    with pytest.raises(CaseError, match="--floor-from"):
+        speed_accuracy(sweep, floor_from=names[0], out=tmp_path / "out2")
