@@ -50,7 +50,7 @@ class ChuteSegmentScene(ChuteScene):
     SCHEMA = {
         "geometry": {k: _CHUTE["geometry"][k] for k in ("width", "depth")},
         "segment": {
-            "length": _pos(0.036, "m", "periodic length along z (the map driver scales it with the diameter: 8 d)"),
+            "length": _pos(0.024, "m", "periodic length along z (the map driver scales it with the diameter: 8 d)"),
             "z": Key("float", 0.35, "m", "z of the segment's upstream end along the full chute (its rotating-frame "
                      "terms: centrifugal force and lid cross-wind); default the middle of the 16 rpm chute"),
             "bed_depth": _pos(0.011, "m", "depth of the bed at solid_fraction (the flagship's developed bed at the "
