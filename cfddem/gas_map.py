@@ -26,7 +26,10 @@ Replica r uses ``particles.seed = 1 + r`` (another jitter of the placed bed).
 ``OUT/gas_map.png``: per (d, rpm) the gas effect ``v_gas / v_nogas - 1`` of the mean streamwise
 particle velocity at the end time (mean over the replicas), its scatter over the replicas (the
 standard deviation; with one replica none), the run-to-run scatter of the gas-free end velocity
-itself (standard deviation over the replicas, relative), the mean slip of the bed and of the
+itself (standard deviation over the replicas, relative), the direct effect
+``(gas impulse on the beads / bead mass) / v_nogas`` (series ``gas_impulse_z``: drag, pressure
+and the imposed mean pressure gradient; what the gas's own force changed, free of the chaotic
+scatter of the other forces) and its scatter, the mean slip of the bed and of the
 surface layer against the gas (``/measurements/momentum_budget``, averaged from
 ``measurements.start_time``), the mean gas velocity at the end, and the wall times.
 """
@@ -121,6 +124,8 @@ def _read(run: Path) -> dict | None:
                    "wall": float(info["wall_time"]), "status": info["status"]}
             if "gas_mean_velocity_z" in s:
                 out["u"] = s["gas_mean_velocity_z"][()]
+            if "gas_impulse_z" in s:  # the gas's impulse per unit bead mass (M from t = 0, all at one velocity)
+                out["dv"] = s["gas_impulse_z"][()] * s["mean_velocity_z"][0] / s["particle_momentum_z"][0]
             b = f.get("measurements/momentum_budget")
             if b is not None:
                 for k in ("slip_bed", "slip_surface", "drag", "pressure", "gravity"):
@@ -146,12 +151,14 @@ def collect(out) -> tuple[list[dict], dict]:
             runs.setdefault(key, []).append((int(spart[4:]), g, ng))
     rows, hist = [], {}
     for (dmm, rpm), reps in sorted(runs.items()):
-        eff, vng, slipb, slips, ug, walls, effs_t = [], [], [], [], [], [], []
+        eff, vng, slipb, slips, ug, walls, effs_t, direct, dir_t = [], [], [], [], [], [], [], [], []
         for _, g, ng in reps:
             n = min(len(g["t"]), len(ng["t"]))
             e_t = g["v"][:n] / ng["v"][:n] - 1.0
             effs_t.append(e_t)
             eff.append(e_t[-1])
+            dir_t.append(g["dv"][:n] / ng["v"][:n] if "dv" in g else np.full(n, np.nan))
+            direct.append(dir_t[-1][-1])
             vng.append(ng["v"][n - 1])
             slipb.append(g.get("slip_bed", np.nan))
             slips.append(g.get("slip_surface", np.nan))
@@ -159,7 +166,8 @@ def collect(out) -> tuple[list[dict], dict]:
             walls += [g["wall"], ng["wall"]]
             assert g["n"][-1] == g["n"][0] and ng["n"][-1] == ng["n"][0]
         n = min(len(e) for e in effs_t)
-        hist[(dmm, rpm)] = (reps[0][1]["t"][:n], np.mean([e[:n] for e in effs_t], axis=0))
+        hist[(dmm, rpm)] = (reps[0][1]["t"][:n], np.mean([e[:n] for e in effs_t], axis=0),
+                            np.mean([e[:n] for e in dir_t], axis=0))
         k = len(reps)
         rows.append({
             "d_mm": dmm, "rpm": rpm, "replicas": k, "particles": int(reps[0][1]["n"][0]),
@@ -168,6 +176,8 @@ def collect(out) -> tuple[list[dict], dict]:
             "gas_effect_pct": 100 * float(np.mean(eff)),
             "effect_scatter_pct": 100 * float(np.std(eff, ddof=1)) if k > 1 else float("nan"),
             "v_nogas_scatter_pct": 100 * float(np.std(vng, ddof=1) / np.mean(vng)) if k > 1 else float("nan"),
+            "direct_effect_pct": 100 * float(np.mean(direct)),
+            "direct_scatter_pct": 100 * float(np.std(direct, ddof=1)) if k > 1 else float("nan"),
             "gas_velocity_m_s": float(np.nanmean(ug)),
             "slip_bed_m_s": float(np.nanmean(slipb)), "slip_surface_m_s": float(np.nanmean(slips)),
             "wall_s_per_run": float(np.mean(walls)),
@@ -187,7 +197,8 @@ def write_report(out, echo=print) -> list[Path]:
         w.writerows(rows)
     fmt = {"d_mm": "{:g}", "rpm": "{:g}", "replicas": "{}", "particles": "{:,}", "end_time_s": "{:.3g}",
            "v_nogas_m_s": "{:.4f}", "gas_effect_pct": "{:+.3f}", "effect_scatter_pct": "{:.3f}",
-           "v_nogas_scatter_pct": "{:.3f}", "gas_velocity_m_s": "{:.3f}", "slip_bed_m_s": "{:+.3f}",
+           "v_nogas_scatter_pct": "{:.3f}", "direct_effect_pct": "{:+.3f}",
+           "direct_scatter_pct": "{:.3f}", "gas_velocity_m_s": "{:.3f}", "slip_bed_m_s": "{:+.3f}",
            "slip_surface_m_s": "{:+.3f}", "wall_s_per_run": "{:.0f}"}
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for r in rows:
@@ -214,7 +225,10 @@ def _chart(rows, hist, path) -> Path:
         err = np.array([r["effect_scatter_pct"] for r in sel])
         sc = np.array([r["v_nogas_scatter_pct"] for r in sel])
         off = 1.0 + 0.02 * (i - 0.5 * (len(rpms) - 1))  # spread the error bars apart
-        a1.errorbar(d * off, e, yerr=np.nan_to_num(err), marker="o", capsize=4, label=f"{rpm:g} rpm (bars: replica scatter of the effect)")
+        a1.errorbar(d * off, e, yerr=np.nan_to_num(err), marker="o", capsize=4, color=f"C{i}",
+                    label=f"{rpm:g} rpm: v_gas / v_nogas - 1 (bars: replica scatter)")
+        de = np.array([r["direct_effect_pct"] for r in sel])
+        a1.plot(d * off, de, ls="--", marker="s", mfc="none", color=f"C{i}", label=f"{rpm:g} rpm: direct (gas impulse / M v)")
         a1.fill_between(d, -sc, sc, alpha=0.12, color=f"C{i}")
     a1.axhline(0.0, color="k", lw=0.6)
     a1.set_xscale("log")
@@ -224,17 +238,18 @@ def _chart(rows, hist, path) -> Path:
     a1.minorticks_off()
     a1.set_xlabel("particle diameter d [mm]")
     a1.set_ylabel("gas effect on the mean streamwise velocity [%]")
-    a1.set_title(f"At t = {rows[0]['end_time_s']:.2g} s (band: run-to-run scatter of v without gas)")
+    a1.set_title(f"At t = {rows[0]['end_time_s']:.2g} s (band: run-to-run scatter of v without gas)", fontsize=10)
     a1.legend(fontsize=8)
     rpm_h = 16.0 if 16.0 in rpms else rpms[0]
     for j, dmm in enumerate(ds):
         if (dmm, rpm_h) in hist:
-            t, e = hist[(dmm, rpm_h)]
-            a2.plot(t, 100 * e, label=f"d = {dmm:g} mm")
+            t, e, de = hist[(dmm, rpm_h)]
+            a2.plot(t, 100 * e, color=f"C{j}", label=f"d = {dmm:g} mm")
+            a2.plot(t, 100 * de, color=f"C{j}", ls="--", label=f"d = {dmm:g} mm, direct")
     a2.axhline(0.0, color="k", lw=0.6)
     a2.set_xlabel("time t [s]")
     a2.set_ylabel("gas effect v_gas / v_nogas - 1 [%]")
-    a2.set_title(f"History at {rpm_h:g} rpm (mean of the replicas)")
+    a2.set_title(f"History at {rpm_h:g} rpm (mean of the replicas; dashed: direct)")
     a2.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)

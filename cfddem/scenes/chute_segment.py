@@ -256,6 +256,7 @@ class ChuteSegmentScene(ChuteScene):
         return None
 
     def start(self) -> None:
+        self._count_impulse()
         pos = self.bed(self.case)
         p = self.case.particles
         self.sim.system.add_particles(pos, np.array([0.0, 0.0, self.case.segment.velocity]), 0.5 * p.diameter,
@@ -291,11 +292,48 @@ class ChuteSegmentScene(ChuteScene):
     def exit_mask(self, pos):
         return None
 
+    def _count_impulse(self, value: float = 0.0) -> None:
+        """Put :class:`_GasImpulse` in front of the coupling's force sink (with gas)."""
+        gas = self.sim.gas
+        if gas is not None:
+            self.impulse = _GasImpulse(gas.force_sink, value)
+            gas.force_sink = self.impulse
+
     def series(self) -> dict:
-        """``gas_mean_velocity_z``: the mean streamwise gas velocity over the domain's z faces
-        (with gas; not weighted by porosity)."""
+        """With gas: ``gas_mean_velocity_z``, the mean streamwise gas velocity over the domain's z
+        faces (not weighted by porosity); ``gas_impulse_z`` [N s], the gas's streamwise impulse
+        on the beads since the start: drag and pressure force integrated over every gas step,
+        plus the imposed mean pressure gradient's force -G V t (the direct effect of the gas)."""
         gas = self.sim.gas
         if gas is None or not hasattr(gas, "gas"):
             return {}
         w = gas.gas.w.interior  # faces 0..nz along the periodic z: face nz is face 0
-        return {"gas_mean_velocity_z": float(np.mean(w[:, :, :-1]))}
+        sys_ = self.sim.system
+        vol = float(np.sum(sys_.mass)) / self.case.particles.density
+        return {"gas_mean_velocity_z": float(np.mean(w[:, :, :-1])),
+                "gas_impulse_z": self.impulse.value - self.mean_pressure_gradient(self.case) * vol * sys_.time}
+
+    def get_state(self) -> dict:
+        return {"gas_impulse": np.float64(self.impulse.value)} if hasattr(self, "impulse") else {}
+
+    def set_state(self, d: dict) -> None:
+        self._count_impulse(float(d.get("gas_impulse", 0.0)))
+
+
+class _GasImpulse:
+    """The coupling's force sink (``CoupledGas.force_sink``) of the segment: sums every gas
+    step's streamwise drag and pressure impulse on the free particles, then hands the step on
+    to the momentum budget it wraps (if that wants it)."""
+
+    def __init__(self, inner, value: float = 0.0):
+        self.inner = inner
+        self.value = float(value)
+
+    def wants_gas(self, time: float) -> bool:
+        return True
+
+    def add_gas(self, time, dt_gas, pos, held, drag, pressure, keff=None, eps=None) -> None:
+        free = ~np.asarray(held, bool)
+        self.value += dt_gas * float(np.sum(drag[free, 2]) + np.sum(pressure[free, 2]))
+        if self.inner is not None and self.inner.wants_gas(time):
+            self.inner.add_gas(time, dt_gas, pos, held, drag, pressure, keff, eps)
