@@ -65,6 +65,9 @@ def test_drag_of_air_at_rest_against_a_single_bead(root, tmp_path):
     assert a1 == pytest.approx(0.095, rel=0.02)
     assert dv > 0
     assert 0.5 < (dv / t) / a1 < 4.0, (dv / t, a1)
+    # the gas's impulse on the beads (gas_impulse_z) per unit bead mass is the velocity they lost
+    m = sg["particle_momentum_z"][0] / sg["mean_velocity_z"][0]
+    assert -sg["gas_impulse_z"][-1] / m == pytest.approx(dv, rel=0.1)
     # the drag pushed the air along: its mean velocity rose from rest
     assert sg["gas_mean_velocity_z"][0] == 0.0 and sg["gas_mean_velocity_z"][-1] > 1e-3
 
