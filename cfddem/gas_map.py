@@ -29,7 +29,8 @@ standard deviation; with one replica none), the run-to-run scatter of the gas-fr
 itself (standard deviation over the replicas, relative), the direct effect
 ``(gas impulse on the beads / bead mass) / v_nogas`` (series ``gas_impulse_z``: drag, pressure
 and the imposed mean pressure gradient; what the gas's own force changed, free of the chaotic
-scatter of the other forces) and its scatter, the mean slip of the bed and of the
+scatter of the other forces), its scatter and the part of it from the imposed mean pressure
+gradient alone (``-G t / (rho_p v_nogas)``, the beads' buoyancy of the full chute), the mean slip of the bed and of the
 surface layer against the gas (``/measurements/momentum_budget``, averaged from
 ``measurements.start_time``), the mean gas velocity at the end, and the wall times.
 """
@@ -121,11 +122,18 @@ def _read(run: Path) -> dict | None:
         with h5py.File(run / "results.h5", "r") as f:
             s = f["series"]
             out = {"t": s["time"][()], "v": s["mean_velocity_z"][()], "n": s["n_particles"][()],
-                   "wall": float(info["wall_time"]), "status": info["status"]}
+                   "wall": float(info["wall_time"]), "status": info["status"], "message": info.get("message", "")}
             if "gas_mean_velocity_z" in s:
                 out["u"] = s["gas_mean_velocity_z"][()]
             if "gas_impulse_z" in s:  # the gas's impulse per unit bead mass (M from t = 0, all at one velocity)
                 out["dv"] = s["gas_impulse_z"][()] * s["mean_velocity_z"][0] / s["particle_momentum_z"][0]
+            if "gas_impulse_z" in s:  # the imposed mean pressure gradient's part of it, -G t / rho_p
+                from .config import load_case
+                from .scenes.chute_segment import ChuteSegmentScene
+
+                case = load_case(run / "case.resolved.toml")
+                out["dv_gradient"] = (-ChuteSegmentScene.mean_pressure_gradient(case) * s["time"][()]
+                                      / case.particles.density)
             b = f.get("measurements/momentum_budget")
             if b is not None:
                 for k in ("slip_bed", "slip_surface", "drag", "pressure", "gravity"):
@@ -136,22 +144,25 @@ def _read(run: Path) -> dict | None:
     return out
 
 
-def collect(out) -> tuple[list[dict], dict]:
-    """One row per (d, rpm) and the effect histories ``{(d_mm, rpm): (t, mean effect)}``."""
+def collect(out) -> tuple[list[dict], dict, list]:
+    """One row per (d, rpm), the effect histories ``{(d_mm, rpm): (t, mean effect, mean direct
+    effect)}`` and the pairs left out ``(name, why)`` (a run failed or unfinished)."""
     out = Path(out)
-    runs = {}
+    runs, skipped = {}, []
     for p in sorted(out.iterdir()):
         if p.is_dir() and p.name.startswith("d") and p.name.endswith("_gas"):
             stem = p.name[: -len("_gas")]
             g, ng = _read(p), _read(out / f"{stem}_nogas")
             if g is None or ng is None or g["status"] != "done" or ng["status"] != "done":
+                bad = [x for x in (g, ng) if x is not None and x["status"] != "done"]
+                skipped.append((stem, bad[0]["message"] if bad else "unfinished or unreadable"))
                 continue
             dpart, rpart, spart = stem.split("_")
             key = (float(dpart[1:-2]), float(rpart[3:]))
             runs.setdefault(key, []).append((int(spart[4:]), g, ng))
     rows, hist = [], {}
     for (dmm, rpm), reps in sorted(runs.items()):
-        eff, vng, slipb, slips, ug, walls, effs_t, direct, dir_t = [], [], [], [], [], [], [], [], []
+        eff, vng, slipb, slips, ug, walls, effs_t, direct, dir_t, grad = [], [], [], [], [], [], [], [], [], []
         for _, g, ng in reps:
             n = min(len(g["t"]), len(ng["t"]))
             e_t = g["v"][:n] / ng["v"][:n] - 1.0
@@ -159,6 +170,7 @@ def collect(out) -> tuple[list[dict], dict]:
             eff.append(e_t[-1])
             dir_t.append(g["dv"][:n] / ng["v"][:n] if "dv" in g else np.full(n, np.nan))
             direct.append(dir_t[-1][-1])
+            grad.append(g["dv_gradient"][n - 1] / ng["v"][n - 1] if "dv_gradient" in g else np.nan)
             vng.append(ng["v"][n - 1])
             slipb.append(g.get("slip_bed", np.nan))
             slips.append(g.get("slip_surface", np.nan))
@@ -178,16 +190,17 @@ def collect(out) -> tuple[list[dict], dict]:
             "v_nogas_scatter_pct": 100 * float(np.std(vng, ddof=1) / np.mean(vng)) if k > 1 else float("nan"),
             "direct_effect_pct": 100 * float(np.mean(direct)),
             "direct_scatter_pct": 100 * float(np.std(direct, ddof=1)) if k > 1 else float("nan"),
+            "gradient_part_pct": 100 * float(np.mean(grad)),
             "gas_velocity_m_s": float(np.nanmean(ug)),
             "slip_bed_m_s": float(np.nanmean(slipb)), "slip_surface_m_s": float(np.nanmean(slips)),
             "wall_s_per_run": float(np.mean(walls)),
         })
-    return rows, hist
+    return rows, hist, skipped
 
 
 def write_report(out, echo=print) -> list[Path]:
     out = Path(out)
-    rows, hist = collect(out)
+    rows, hist, skipped = collect(out)
     if not rows:
         raise CaseError("OUT", f"{out} holds no pair of finished runs (with and without gas)")
     cols = list(rows[0])
@@ -198,12 +211,15 @@ def write_report(out, echo=print) -> list[Path]:
     fmt = {"d_mm": "{:g}", "rpm": "{:g}", "replicas": "{}", "particles": "{:,}", "end_time_s": "{:.3g}",
            "v_nogas_m_s": "{:.4f}", "gas_effect_pct": "{:+.3f}", "effect_scatter_pct": "{:.3f}",
            "v_nogas_scatter_pct": "{:.3f}", "direct_effect_pct": "{:+.3f}",
-           "direct_scatter_pct": "{:.3f}", "gas_velocity_m_s": "{:.3f}", "slip_bed_m_s": "{:+.3f}",
+           "direct_scatter_pct": "{:.1g}", "gradient_part_pct": "{:+.3f}", "gas_velocity_m_s": "{:.3f}", "slip_bed_m_s": "{:+.3f}",
            "slip_surface_m_s": "{:+.3f}", "wall_s_per_run": "{:.0f}"}
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for r in rows:
         lines.append("| " + " | ".join("-" if isinstance(r[c], float) and math.isnan(r[c]) else fmt[c].format(r[c])
                                        for c in cols) + " |")
+    if skipped:
+        lines += ["", "Left out (a run of the pair did not finish):", ""]
+        lines += [f"- {name}: {why}" for name, why in skipped]
     (out / "gas_map.md").write_text("\n".join(lines) + "\n")
     png = _chart(rows, hist, out / "gas_map.png")
     echo(f"gas map: {len(rows)} (d, rpm) points; {out / 'gas_map.md'}, {png}")
