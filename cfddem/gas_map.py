@@ -10,7 +10,8 @@ rotation").
 ``run`` runs every (diameter, rpm, replica) with and without gas from the same initial state
 (one process per run, ``--workers`` at once, one numba thread each) into
 ``OUT/d<mm>_rpm<rpm>_seed<s>_<gas|nogas>``; a run already complete with the same configuration
-is skipped (:func:`cfddem.sweep.run_variant`).  Per diameter d against the case's d_ref:
+is skipped (:func:`cfddem.sweep.run_is_complete`; the others run through
+:func:`cfddem.sweep.run_variant`).  Per diameter d against the case's d_ref:
 
 * stiffness ``k_n = k_ref (d/d_ref)^2`` (particle-particle and particle-wall): the overlap under
   the weight of a fixed number of layers stays the same fraction of d;
@@ -95,15 +96,21 @@ def plan(case_path, diameters, rpms, replicas, length_d, common) -> list[tuple[s
 def run_map(out, case_path=DEFAULT_CASE, diameters=(0.003, 0.002, 0.0015, 0.001), rpms=(0.0, 16.0, 32.0),
             replicas=2, workers=2, length_d=8.0, common=None, echo=print) -> list[dict]:
     """Run the map into ``out`` (module docstring); returns the sweep rows of the runs."""
-    from .sweep import run_variant
+    from .config import load_case
+    from .sweep import run_is_complete, run_variant
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     jobs = plan(case_path, diameters, rpms, replicas, length_d, dict(common or {}))
     (out / "plan.csv").write_text("name\n" + "\n".join(n for n, _ in jobs) + "\n")
-    rows = []
+    rows, todo = [], []
+    for n, ov in jobs:
+        if run_is_complete(out / n, load_case(case_path, overrides=ov)):
+            echo(f"[{n}] skipped: complete run found")
+        else:
+            todo.append((n, ov))
     with ProcessPoolExecutor(max_workers=workers) as ex:
-        futs = [(n, ex.submit(run_variant, str(case_path), ov, str(out / n), 1)) for n, ov in jobs]
+        futs = [(n, ex.submit(run_variant, str(case_path), ov, str(out / n), 1)) for n, ov in todo]
         for n, f in futs:
             row = f.result()
             rows.append(row)
@@ -245,7 +252,7 @@ def _chart(rows, hist, path) -> Path:
                     label=f"{rpm:g} rpm: v_gas / v_nogas - 1 (bars: replica scatter)")
         de = np.array([r["direct_effect_pct"] for r in sel])
         a1.plot(d * off, de, ls="--", marker="s", mfc="none", color=f"C{i}", label=f"{rpm:g} rpm: direct (gas impulse / M v)")
-        a1.fill_between(d, -sc, sc, alpha=0.12, color=f"C{i}")
+        a1.fill_between(d, -sc, sc, alpha=0.10, color=f"C{i}")
     a1.axhline(0.0, color="k", lw=0.6)
     a1.set_xscale("log")
     ds = sorted({r["d_mm"] for r in rows})
@@ -255,7 +262,7 @@ def _chart(rows, hist, path) -> Path:
     a1.set_xlabel("particle diameter d [mm]")
     a1.set_ylabel("gas effect on the mean streamwise velocity [%]")
     a1.set_title(f"At t = {rows[0]['end_time_s']:.2g} s (band: run-to-run scatter of v without gas)", fontsize=10)
-    a1.legend(fontsize=8)
+    a1.legend(fontsize=7, loc="upper left", ncol=1)
     rpm_h = 16.0 if 16.0 in rpms else rpms[0]
     for j, dmm in enumerate(ds):
         if (dmm, rpm_h) in hist:
