@@ -164,6 +164,9 @@ def collect(out) -> tuple[list[dict], dict, list]:
                 bad = [x for x in (g, ng) if x is not None and x["status"] != "done"]
                 skipped.append((stem, bad[0]["message"] if bad else "unfinished or unreadable"))
                 continue
+            if g["n"][-1] != g["n"][0] or ng["n"][-1] != ng["n"][0]:
+                skipped.append((stem, "beads left the segment (over a side wall)"))
+                continue
             dpart, rpart, spart = stem.split("_")
             key = (float(dpart[1:-2]), float(rpart[3:]))
             runs.setdefault(key, []).append((int(spart[4:]), g, ng))
@@ -183,7 +186,6 @@ def collect(out) -> tuple[list[dict], dict, list]:
             slips.append(g.get("slip_surface", np.nan))
             ug.append(g["u"][n - 1] if "u" in g else np.nan)
             walls += [g["wall"], ng["wall"]]
-            assert g["n"][-1] == g["n"][0] and ng["n"][-1] == ng["n"][0]
         n = min(len(e) for e in effs_t)
         hist[(dmm, rpm)] = (reps[0][1]["t"][:n], np.mean([e[:n] for e in effs_t], axis=0),
                             np.mean([e[:n] for e in dir_t], axis=0))
