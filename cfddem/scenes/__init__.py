@@ -47,6 +47,7 @@ import math
 #: geometry.type -> "module:Class" (imported on first use)
 SCENES: dict[str, str] = {
     "chute": "cfddem.scenes.chute:ChuteScene",
+    "chute_segment": "cfddem.scenes.chute_segment:ChuteSegmentScene",
     "box": "cfddem.scenes.box:BoxScene",
     "silo": "cfddem.scenes.silo:SiloScene",
     "silo_blender": "cfddem.scenes.blender:BlenderScene",

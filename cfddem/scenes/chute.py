@@ -218,13 +218,22 @@ class ChuteScene(Scene):
                                  gap=case.inlet.gap).velocity)
 
     @classmethod
+    def lid_bc(cls, case):
+        """The open top's boundary condition per ``gas.lid``."""
+        from ..gas import FreeSlip, LidCrossWind, NoSlip
+
+        om = tuple(float(v) for v in frame_omega(case))
+        return {"crosswind": LidCrossWind(omega=om, axis_point=tuple(float(v) for v in case.frame.axis_point)),
+                "slip": FreeSlip(), "wall": NoSlip()}[case.gas.lid]
+
+    @classmethod
     def gas_domain(cls, case):
         """x in [0, width], y in [0, gas.height], z in [z_start, exit.z] on ``gas.cells``; no-slip
         x-, x+, y-; y+ per ``gas.lid``; z- velocity inlet at :meth:`gas_inlet_velocity`; z+
         pressure outlet, hydrostatic across the plane.  The gas starts with the inlet velocity
         everywhere along z (divergence-free, compatible with inlet and outlet) and the
         hydrostatic pressure."""
-        from ..gas import FreeSlip, Inlet, LidCrossWind, NoSlip, PressureOutlet, StaggeredGrid
+        from ..gas import Inlet, NoSlip, PressureOutlet, StaggeredGrid
         from ..gas.domain import GasDomain
 
         geo, gcfg = case.geometry, case.gas
@@ -235,8 +244,7 @@ class ChuteScene(Scene):
         om = np.asarray(frame_omega(case), float)
         ap = tuple(float(v) for v in case.frame.axis_point)
         vin = cls.gas_inlet_velocity(case)
-        lid = {"crosswind": LidCrossWind(omega=tuple(om), axis_point=ap), "slip": FreeSlip(),
-               "wall": NoSlip()}[gcfg.lid]
+        lid = cls.lid_bc(case)
         rho = float(gcfg.density)
         # outlet pressure hydrostatic across the outlet plane (zero for gas at rest)
         pout = PressureOutlet(p=lambda x, y, z, _g=g, _r=rho: _r * (_g[0] * x + _g[1] * y))
