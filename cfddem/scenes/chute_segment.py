@@ -277,8 +277,8 @@ class ChuteSegmentScene(ChuteScene):
             n_top=m.n_top, profile_half_length=0.5 * seg.length)
 
     def make_budget(self):
-        """The particles' momentum budget over the whole segment (one bin; the kinetic flux
-        through its periodic faces cancels up to the top-hat's noise)."""
+        """The particles' momentum budget over the whole segment (one bin; a particle wrapped
+        through the periodic faces stays in it, so the flux is zero)."""
         case = self.case
         if not case.measurements.enabled:
             return None
@@ -287,7 +287,7 @@ class ChuteSegmentScene(ChuteScene):
         z0, L = case.segment.z, case.segment.length
         names = [w.name for w in self.wall_specs(case)]
         return MomentumBudget(np.array([z0, z0 + L]), axis=2, start_time=case.measurements.start_time,
-                              wall_names=names, slab=2.0 * case.particles.diameter)
+                              wall_names=names)
 
     def exit_mask(self, pos):
         return None
