@@ -684,14 +684,18 @@ def draw_chart(result: dict):
 
 
 def _wall_ticks(ax, xlim) -> None:
-    """Wall-time ticks written plainly (200, 500, 1000) at 1-2-5 steps, or 1-1.5-2-3-5-7 steps
-    when the range holds fewer than three of those; no minor tick labels."""
+    """Wall-time ticks written plainly (200, 500, 1000) at 1-2-5 steps (1-3 steps, or decades,
+    over more than two decades), or 1-1.5-2-3-5-7 steps when the range holds fewer than three
+    of those; no minor tick labels."""
     from matplotlib.ticker import FixedLocator, FuncFormatter, NullFormatter
 
     e0, e1 = int(math.floor(math.log10(xlim[0]))), int(math.ceil(math.log10(xlim[1])))
-    for mant in ((1, 2, 5), (1, 1.5, 2, 3, 5, 7), (1, 1.2, 1.5, 2, 2.5, 3, 4, 5, 6, 7, 8, 9)):
+    decades = math.log10(xlim[1] / xlim[0])
+    # over more than two decades 1-2-5 ticks crowd a panel (500 and 1000 run into each other)
+    first = ((1, 3), (1,)) if decades > 2.2 else ((1, 2, 5),)
+    for mant in first + ((1, 1.5, 2, 3, 5, 7), (1, 1.2, 1.5, 2, 2.5, 3, 4, 5, 6, 7, 8, 9)):
         ticks = [m * 10.0**e for e in range(e0, e1 + 1) for m in mant if xlim[0] <= m * 10.0**e <= xlim[1]]
-        if len(ticks) >= 3:
+        if len(ticks) >= 3 and (len(ticks) <= 7 or len(mant) == 1):
             break
     ax.xaxis.set_major_locator(FixedLocator(ticks))
     ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))

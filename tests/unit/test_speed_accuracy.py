@@ -297,3 +297,29 @@ def test_floor_from_the_replicas_of_another_setting(tmp_path):
     assert "replicas of" in (tmp_path / "out" / "speed_accuracy.md").read_text()
     with pytest.raises(CaseError, match="--floor-from"):
         speed_accuracy(sweep, floor_from=names[0], out=tmp_path / "out2")
+
+
+@pytest.mark.parametrize("xlim", [(9.0, 7400.0), (60.0, 800.0), (150.0, 400.0)])
+def test_wall_time_tick_labels_do_not_overlap(xlim):
+    """On a 3.7 in panel the wall-time tick labels (plain numbers) never touch, from a range of
+    under one decade (at least three ticks) to nearly three decades (a failed run at 15 s beside
+    a reference at 4,600 s put 500 and 1000 into each other with 1-2-5 ticks)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from cfddem.report.speed_accuracy import _wall_ticks
+
+    fig, ax = plt.subplots(figsize=(3.7, 3.0), dpi=100)
+    ax.set_xscale("log")
+    ax.set_xlim(*xlim)
+    _wall_ticks(ax, xlim)
+    ax.tick_params(labelsize=9)
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    boxes = [t.get_window_extent(r) for t in ax.get_xticklabels() if t.get_text() and t.get_visible()]
+    assert len(boxes) >= 3
+    boxes.sort(key=lambda b: b.x0)
+    assert all(b1.x0 - b0.x1 > 2.0 for b0, b1 in zip(boxes, boxes[1:]))
+    plt.close(fig)
