@@ -129,6 +129,8 @@ class Simulation:
         self.counters = {"mass_out": 0.0, "count_out": 0, "mass_lost": 0.0, "count_lost": 0}
         self._built = False
         self._signal: int | None = None
+        self._wall_prev = 0.0  # wall time of the run before the checkpoint it resumed from
+        self._t_wall0: float | None = None
         self.log = logging.getLogger("cfddem")
 
     # ------------------------------------------------------------------------------- set-up
@@ -199,7 +201,8 @@ class Simulation:
             "system": self.system.get_state(),
             "schedules": {k: np.int64(v.k) for k, v in self.schedules.items()},
             "counters": dict(self.counters),
-            "timings": dict(self.timings),
+            "timings": {**self.timings, "total": self._wall_prev + (
+                _time.perf_counter() - self._t_wall0 if self._t_wall0 is not None else 0.0)},
             "clock": {"time": float(self.system.time), "step": int(self.system.step_count)},
         }
         if self.inlet is not None:
@@ -226,6 +229,7 @@ class Simulation:
                 self.schedules[k].k = int(v)
         self.counters.update({k: type(self.counters[k])(v) for k, v in st["counters"].items()})
         self.timings.update({k: float(v) for k, v in st.get("timings", {}).items() if k in self.timings})
+        self._wall_prev = float(st.get("timings", {}).get("total", 0.0))  # a resumed run's wall time adds on
         if self.inlet is not None:
             self.inlet.set_state(st["inlet"])
         if self.measure is not None and "measure" in st:
@@ -376,7 +380,7 @@ class Simulation:
             for line in self.gas.diagnostics()[:-1]:
                 log.info("gas: %s", line)
         check_time_step(case, log=log)
-        t_wall0 = _time.perf_counter()
+        t_wall0 = self._t_wall0 = _time.perf_counter()
         dt = self.dt
         sys_ = self.system
         sch = self.schedules
@@ -627,7 +631,7 @@ class Simulation:
             res.write_measurements(group, arrays, attrs)
 
     def _finish(self, res, status: str, message: str, t_wall0: float) -> RunSummary:
-        wall = _time.perf_counter() - t_wall0
+        wall = self._wall_prev + _time.perf_counter() - t_wall0  # with the wall time before a resume
         s = self.system
         if self.measure is not None:
             try:

@@ -127,8 +127,15 @@ def test_resume_is_bit_identical(tmp_path):
                       progress=False).run()
     assert part.status == "stopped" and part.steps == 1500
     # ... and resumed from its newest checkpoint
+    t0 = time.perf_counter()
     res = Simulation(load_case(d), tmp_path / "part", resume=True, echo=False, progress=False).run()
+    seg = time.perf_counter() - t0
     assert res.status == "done" and res.steps == ref.steps
+    # the wall time adds the run's time before its checkpoint to the resumed part, like the
+    # cost categories do: it is at least their sum and more than the resumed part alone
+    other = sum(v for k, v in res.timings.items() if k != "total")
+    assert res.wall_time == res.timings["total"] >= other > 0
+    assert res.wall_time > seg - 1e-3 and res.wall_time > 0.0
     a, b = _final_state(tmp_path / "ref"), _final_state(tmp_path / "part")
     for k in ("pos", "vel", "omega", "ids"):
         assert np.array_equal(a[k], b[k]), k
