@@ -217,14 +217,6 @@ class MomentumBudget:
         self._step(system, False)
         self._step_t += system.dt
 
-    def _wall_label(self, system, k: int) -> str:
-        w = system.walls[k]
-        return w.name or f"wall{k}"
-
-    def _mesh_label(self, system, k: int) -> str:
-        w = system.meshes[k]
-        return w.name or f"mesh{k}"
-
     @property
     def n_bins(self) -> int:
         return len(self.edges) - 1
@@ -302,14 +294,10 @@ class MomentumBudget:
                 self._acc_t = 0.0
             T = self._step_t
             row = {k: self._step_acc[j] / T for j, k in enumerate(STEPPED) if k != "external" or gas is None}
-            for k in range(system.nw):
-                name = self._wall_label(system, k)
-                if name in self.wall_names:
-                    row[f"wall_{name}"] = self._wall_acc[k] / T
-            for k in range(system.nm):
-                name = self._mesh_label(system, k)
-                if name in self.wall_names:
-                    row[f"wall_{name}"] = self._mesh_acc[k] / T
+            for names, acc in ((system.wall_labels(), self._wall_acc), (system.mesh_labels(), self._mesh_acc)):
+                for k, name in enumerate(names):
+                    if name in self.wall_names:
+                        row[f"wall_{name}"] = acc[k] / T
             row["duration"] = np.full(self.n_bins, T)
             for k_, v in row.items():
                 self._rows.setdefault(k_, []).append(v)

@@ -699,6 +699,14 @@ class ParticleSystem:
         it.reduce_walls(self.n, self.nw, self._won, self._wfw, self._wtw, self._fw, self._tw)
         return self._tw[: self.nw].copy()
 
+    def wall_labels(self) -> list[str]:
+        """The name of each analytic wall (``wall<k>`` for an unnamed one), in engine order."""
+        return [w.name or f"wall{k}" for k, w in enumerate(self.walls)]
+
+    def mesh_labels(self) -> list[str]:
+        """The name of each mesh wall (``mesh<k>`` for an unnamed one), in engine order."""
+        return [w.name or f"mesh{k}" for k, w in enumerate(self.meshes)]
+
     def force_breakdown(self) -> dict:
         """Each particle's force at the last evaluation, split by origin: a dict of (n, 3)
         arrays (force ON the particle, in this frame)::
@@ -729,13 +737,13 @@ class ParticleSystem:
         r = self.pos - self.axis_point[None, :]
         cen = -m * np.cross(om[None, :], np.cross(om[None, :], r))
         cor = -2.0 * m * np.cross(om[None, :], self.vel)
-        walls = {w.name or f"wall{k}": -self._wfw[:n, k, :].copy() for k, w in enumerate(self.walls)}
+        walls = {name: -self._wfw[:n, k, :].copy() for k, name in enumerate(self.wall_labels())}
         meshes = {}
         if self.nm:
             has = (self._mstart[1: n + 1] > self._mstart[:n])[:, None]
-            for k, w in enumerate(self.meshes):
+            for k, name in enumerate(self.mesh_labels()):
                 on = self._ms_mesh[:n] == k
-                meshes[w.name or f"mesh{k}"] = np.where(has, -np.einsum("ij,ijc->ic", on.astype(float),
+                meshes[name] = np.where(has, -np.einsum("ij,ijc->ic", on.astype(float),
                                                                         self._ms_fw[:n]), 0.0)
         contacts = self.force - g - cen
         for f in list(walls.values()) + list(meshes.values()):
