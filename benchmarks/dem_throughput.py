@@ -1,7 +1,7 @@
 """DEM throughput on the periodic inclined chute of /work/shared/peers/liggghts (30 deg, 0.9 m).
 
     python benchmarks/dem_throughput.py [--particles N] [--threads T] [--steps S] [--peer]
-                                        [--dev-steps D] [--flow-check]
+                                        [--rounds R] [--dev-steps D] [--flow-check]
 
 Same case as the LIGGGHTS peer (README.md, chute_common.in, gen_init.py): jittered lattice start
 (same algorithm and seed, regenerated here; for N != 30,000 the lattice is 20 x 6 across/normal
@@ -16,7 +16,15 @@ downstream (periodic).  The flow is developed for D steps first (compile time ex
 steps are timed for 1 and 2 threads (or --threads T); the last line is
 ``particle_steps_per_s=<number>`` for the last thread count.  --flow-check runs on to t = 0.4 s
 and prints the peer's check quantities (mean downstream velocity, 2 <y>) at 0.2 and 0.4 s.
---peer also runs the peer (NP=1 and NP=2) in the same command and prints the ratio.
+
+--peer: the side-by-side comparison.  LAMMPS and LIGGGHTS (../shared/peers, installed by their
+scripts) run the same chute from their own developed state (20,000 steps from the same lattice,
+cached by the peers' scripts); R rounds (--rounds, default 3), each timing ours and then each
+peer at 1 thread / 1 rank and 2 threads / 2 ranks over the same number of steps (the order
+alternates from round to round); ours restarts every round from the same developed state, so
+every round times the same work.  Prints the CPU model and the load before and after, each
+round's rates, the ratios ours/peer per round and their median, and the pairs per particle of
+each side (ours: the half list with skin; LAMMPS: "Ave neighs/atom" of its half list).
 """
 
 from __future__ import annotations
@@ -26,6 +34,7 @@ import math
 import os
 import random
 import re
+import statistics
 import subprocess
 import sys
 import time
@@ -48,8 +57,10 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 
 from cfddem.particles import LinearContact, ParticleSystem, PlaneWall  # noqa: E402
 
+from machine import cpu_model  # noqa: E402
+
 D, RHO, W = 0.003, 2550.0, 0.08
-PEER = "/work/shared/peers/liggghts"
+PEERS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "shared", "peers")
 
 
 def lattice(n_particles: int, seed: int = 12345):
@@ -103,19 +114,87 @@ def run_steps(s, n, chunk=1000):
         done += k
 
 
-def run_peer():
-    res = {}
-    for np_ in (1, 2):
-        env = dict(os.environ, NP=str(np_), NBENCH="4000" if np_ == 2 else "20000")
-        out = subprocess.run(["bash", f"{PEER}/run_bench.sh"], env=env, capture_output=True, text=True)
-        print(out.stdout.strip())
-        if out.returncode != 0:
-            print(out.stderr[-2000:])
-            continue
-        m = re.findall(r"^liggghts np=(\d+).*psteps_per_s=([0-9.e+]+)", out.stdout, re.M)
-        if m:
-            res[np_] = float(m[-1][1])
+def run_peer(name: str, np_: int, steps: int) -> dict | None:
+    """One timed run of peer ``name`` ('lammps' or 'liggghts') on ``np_`` ranks: its script's
+    result line as a dict (psteps_per_s, wall_s, ...), None if it failed."""
+    script = os.path.join(PEERS, name, "run_bench.sh")
+    env = dict(os.environ, NP=str(np_), NBENCH=str(steps), ANALYZE="0", WORK=f"/tmp/{name}_chute")
+    out = subprocess.run(["bash", script], env=env, capture_output=True, text=True)
+    lines = [ln for ln in out.stdout.splitlines() if ln.startswith(f"{name} np=")]
+    if out.returncode != 0 or not lines:
+        print(f"{name} np={np_} failed: {out.stderr[-800:]}")
+        return None
+    res = dict(kv.split("=", 1) for kv in lines[-1].split()[1:] if "=" in kv)
+    res["psteps_per_s"] = float(res["psteps_per_s"])
+    log = os.path.join(f"/tmp/{name}_chute", f"bench_np{np_}_dt1e-5_n{steps}_r1.log")
+    res["neigh_per_atom"] = _lammps_neighbours(log) if name == "lammps" else None
     return res
+
+
+def _lammps_neighbours(log: str):
+    try:
+        txt = open(log).read()
+    except OSError:
+        return None
+    m = re.findall(r"Ave neighs/atom = ([0-9.eE+-]+)", txt)
+    return float(m[-1]) if m else None
+
+
+def load() -> str:
+    return "load average " + ", ".join(f"{x:.2f}" for x in os.getloadavg())
+
+
+def timed(s, state, threads, steps):
+    """Our rate (particle-steps/s) over ``steps`` steps from ``state`` at ``threads`` threads."""
+    numba.set_num_threads(threads)
+    s.set_state(state)
+    s.step(2)  # warm this thread count
+    r0 = s.n_rebuilds
+    t0 = time.perf_counter()
+    run_steps(s, steps)
+    el = time.perf_counter() - t0
+    return s.n * steps / el, s.n_rebuilds - r0
+
+
+def compare(s, threads, steps, rounds, peers):
+    """Alternating rounds of ours and the peers (module docstring)."""
+    state = s.get_state()
+    print(f"CPU: {cpu_model()}; {os.cpu_count()} cores; {load()}")
+    print(f"ours: {s.n_pairs / s.n:.2f} pairs per particle (half list with skin {s.skin * 1e3:.2f} mm)")
+    ratios = {(p, t): [] for p in peers for t in threads}
+    rates = {("ours", t): [] for t in threads}
+    for r in range(rounds):
+        order = ["ours"] + list(peers)
+        if r % 2:
+            order = order[::-1]
+        for t in threads:
+            got = {}
+            for who in order:
+                if who == "ours":
+                    got[who], nreb = timed(s, state, t, steps)
+                    print(f"round {r + 1} ours threads={t}: {got[who]:.4g} particle-steps/s "
+                          f"({1e9 / got[who]:.1f} ns) rebuilds={nreb}")
+                else:
+                    res = run_peer(who, t, steps)
+                    if res is None:
+                        continue
+                    got[who] = res["psteps_per_s"]
+                    nb = res.get("neigh_per_atom")
+                    print(f"round {r + 1} {who} ranks={t}: {got[who]:.4g} particle-steps/s "
+                          f"({1e9 / got[who]:.1f} ns) pair%={res.get('pair%')} neigh%={res.get('neigh%')} "
+                          f"modify%={res.get('modify%')} builds={res.get('nbuilds')}"
+                          + (f" neighs/atom={nb:.2f}" if nb else ""))
+            rates[("ours", t)].append(got["ours"])
+            for p in peers:
+                if p in got:
+                    ratios[(p, t)].append(got["ours"] / got[p])
+                    print(f"round {r + 1} ratio ours/{p} at {t}: {got['ours'] / got[p]:.3f}")
+    print(f"after: {load()}")
+    for (p, t), v in ratios.items():
+        if v:
+            print(f"ratio ours/{p} at {t} thread(s)/rank(s): median {statistics.median(v):.3f} "
+                  f"(rounds: {', '.join(f'{x:.3f}' for x in v)})")
+    return {t: statistics.median(rates[("ours", t)]) for t in threads}
 
 
 def main(argv=None):
@@ -126,7 +205,9 @@ def main(argv=None):
     ap.add_argument("--dev-steps", type=int, default=None,
                     help="steps before timing (default 20000 at 30,000 particles, scaled ~1/N otherwise)")
     ap.add_argument("--flow-check", action="store_true", help="run on to t = 0.4 s and print the flow state")
-    ap.add_argument("--peer", action="store_true")
+    ap.add_argument("--peer", action="store_true", help="side by side with LAMMPS and LIGGGHTS (module docstring)")
+    ap.add_argument("--peers", default="lammps,liggghts", help="which peers with --peer (comma list)")
+    ap.add_argument("--rounds", type=int, default=3, help="alternating rounds with --peer")
     ap.add_argument("--omp-wait", choices=["passive", "active"], default="passive",
                     help="OMP_WAIT_POLICY for numba's OpenMP threads (default passive)")
     ap.add_argument("--threading-layer", choices=["omp", "tbb", "workqueue"], default="omp")
@@ -156,28 +237,25 @@ def main(argv=None):
         vz, h = flow_state(s)
         print(f"flow t=0.200 s: mean downstream velocity {vz:.3f} m/s (peer 0.698), 2<y> = {1e3 * h:.2f} mm (peer 11.0)")
     rates = {}
-    for t in threads:
-        numba.set_num_threads(t)
-        s.step(2)  # warm this thread count
-        r0 = s.n_rebuilds
-        t0 = time.perf_counter()
-        run_steps(s, a.steps)
-        el = time.perf_counter() - t0
-        rates[t] = s.n * a.steps / el
-        print(f"threads={t} steps={a.steps} wall_s={el:.3f} particle_steps_per_s={rates[t]:.4g} "
-              f"ns_per_particle_step={1e9 / rates[t]:.1f} rebuilds={s.n_rebuilds - r0}")
+    if a.peer:
+        rates = compare(s, threads, a.steps, a.rounds, [p for p in a.peers.split(",") if p])
+    else:
+        for t in threads:
+            numba.set_num_threads(t)
+            s.step(2)  # warm this thread count
+            r0 = s.n_rebuilds
+            t0 = time.perf_counter()
+            run_steps(s, a.steps)
+            el = time.perf_counter() - t0
+            rates[t] = s.n * a.steps / el
+            print(f"threads={t} steps={a.steps} wall_s={el:.3f} particle_steps_per_s={rates[t]:.4g} "
+                  f"ns_per_particle_step={1e9 / rates[t]:.1f} rebuilds={s.n_rebuilds - r0}")
     if a.flow_check:
         rem = int(round(0.4 / s.dt)) - s.step_count
         if rem > 0:
             run_steps(s, rem)
         vz, h = flow_state(s)
         print(f"flow t={s.time:.3f} s: mean downstream velocity {vz:.3f} m/s (peer 1.276), 2<y> = {1e3 * h:.2f} mm (peer 11.8)")
-    if a.peer:
-        peer = run_peer()
-        for t in sorted(rates):
-            if t in peer:
-                print(f"ratio ours/peer at {t} thread(s)/rank(s): {rates[t] / peer[t]:.3f} "
-                      f"(ours {rates[t]:.4g}, peer {peer[t]:.4g})")
     print(f"particle_steps_per_s={rates[threads[-1]]:.6g}")
 
 

@@ -327,8 +327,9 @@ def bodies(system, solid_density: float | None = None) -> dict:
 def contact_branches(system, centre_of=None) -> dict:
     """Every contact force on a body with its half-branch: start X (the body's centre), branch
     B (contact point - X, minimum image) and force F on the body, (k, 3) each, for the pair
-    contacts (two entries each), the analytic walls and the mesh walls, as at the last force
-    evaluation.  Also ``virial``: sum of F (x) B, i.e. the integral of the contact stress."""
+    contacts (two entries each; their forces evaluated at the current state,
+    :meth:`~cfddem.particles.ParticleSystem.pair_forces`), the analytic walls and the mesh walls
+    (as at the last force evaluation).  Also ``virial``: sum of F (x) B, i.e. the integral of the contact stress."""
     _forces_now(system)
     n = system.n
     plen = system._plen
@@ -337,12 +338,9 @@ def contact_branches(system, centre_of=None) -> dict:
     if centre_of is None:
         centre_of = bodies(system, solid_density=1.0)["centre_of"]
     X, B, F = [], [], []
-    # pairs: pf[k, :3] is the force on pi[k] from pj[k]; n from pi to pj
-    cur = system._cur
-    npairs = system.n_pairs
-    pi = cur["pi"][:npairs]
-    pj = cur["pj"][:npairs]
-    pf = cur["pf"][:npairs, :3]
+    # pairs: pf[k] is the force on pi[k] from pj[k]; n from pi to pj
+    pairs = system.pair_forces()
+    pi, pj, pf = pairs["pi"], pairs["pj"], pairs["force"]
     d = _min_image(pos[pj] - pos[pi], plen)
     dist = np.sqrt(np.sum(d * d, axis=1))
     rs = rad[pi] + rad[pj]

@@ -68,8 +68,11 @@ def _half_kick(vx, vy, vz, ax, ay, az, h, rotating, r00, r01, r02, r10, r11, r12
 
 @parallel_kernel
 def kick_drift(n, pos, vel, omg, force, torque, mass, inertia, ext_f, ext_t, has_ext, dt, rotating,
-               Rv, Rw, periodic_len, plo, ref, held):
-    """Opening half kick and drift; wraps periodic axes; returns max |r - r_ref|^2.
+               Rv, Rw, periodic_len, plo, ref, held, dux, duy, duz):
+    """Opening half kick and drift; wraps periodic axes; returns the displacements since the
+    last rebuild d = r - r_ref as (max |d|^2, max |d - u|^2, max |d_x|, max |d_y|, max |d_z|)
+    (u = (dux, duy, duz) the bed's estimated common displacement: the rebuild test,
+    :meth:`cfddem.particles.ParticleSystem._expired`).
     Held particles (``held[i] != 0``: a feed moving at a set velocity) keep their velocity and
     spin: no kick, only the drift."""
     h = 0.5 * dt
@@ -92,6 +95,10 @@ def kick_drift(n, pos, vel, omg, force, torque, mass, inertia, ext_f, ext_t, has
     rw21 = Rw[2, 1]
     rw22 = Rw[2, 2]
     m2 = 0.0
+    r2 = 0.0
+    mx = 0.0
+    my = 0.0
+    mz = 0.0
     for i in prange(n):
         im = 1.0 / mass[i]
         ii = 1.0 / inertia[i]
@@ -142,18 +149,38 @@ def kick_drift(n, pos, vel, omg, force, torque, mass, inertia, ext_f, ext_t, has
         dy = _min_image(y - ref[i, 1], periodic_len[1])
         dz = _min_image(z - ref[i, 2], periodic_len[2])
         m2 = max(m2, dx * dx + dy * dy + dz * dz)
-    return m2
+        qx = dx - dux
+        qy = dy - duy
+        qz = dz - duz
+        r2 = max(r2, qx * qx + qy * qy + qz * qz)
+        mx = max(mx, abs(dx))
+        my = max(my, abs(dy))
+        mz = max(mz, abs(dz))
+    return m2, r2, mx, my, mz
 
 
 @parallel_kernel
-def pair_forces(npairs, pi, pj, pos, vel, omg, radius, mass, inertia, params, periodic_len,
-                hist, pf, pr, dt, dt_hist):
-    """Per pair: pf[k] = (contact force on the first particle a, n x F_t), pr[k] = rolling
-    torque on a (only written when mu_r > 0).  The torques are R_a n x F_t + T_r on a and
-    R_b n x F_t - T_r on b (assembled in the gather).  Updates the tangential history (zero when
-    not touching).
-    updates the tangential history (zero when not touching).  Returns the max overlap ratio
-    d_n / min(R_a, R_b)."""
+def pair_forces(n, nslab, slab_start, slab_ov, first_start, pj, pos, vel, omg, radius, mass,
+                inertia, params, periodic_len, hist, force, torque, store, pf, pr, dt, dt_hist):
+    """The contact forces of all pairs, summed into ``force`` and ``torque`` (zeroed first) in
+    one pass over the half list: each pair's force is added to its first particle a (summed
+    over a's pairs, which are contiguous in the list, then added once) and subtracted from its
+    second particle b (Newton's third law exactly).  The torques are R_a n x F_t + T_r on a and
+    R_b n x F_t - T_r on b (T_r the rolling torque, only when mu_r > 0).  Updates the
+    tangential history (zero when not touching).
+
+    Threads: the particles' slabs (:func:`cfddem.particles.neighbours.slab_starts`) are run in
+    three colours, s = 0, 3, 6, ... in parallel, then 1, 4, ..., then 2, 5, ...; a pair joins
+    particles of the same or neighbouring slabs, so two slabs of one colour never write the
+    same particle.  Each particle's forces are summed in an order fixed by the slabs alone:
+    the result is the same, bit for bit, for any number of threads.
+
+    ``store``: also write each pair's (force on a, n x F_t) to ``pf[k]`` and its rolling torque
+    on a to ``pr[k]`` (zero when not touching), for measurements that need the forces pair by
+    pair (:meth:`cfddem.particles.ParticleSystem.pair_forces`).
+
+    Each slab's largest overlap ratio d_n / min(R_a, R_b) goes to ``slab_ov[s]``; returns their
+    maximum."""
     mur = params[0, P_MUR]
     model = params[0, P_MODEL]
     p1 = params[0, P_1]
@@ -161,66 +188,126 @@ def pair_forces(npairs, pi, pj, pos, vel, omg, radius, mass, inertia, params, pe
     p3 = params[0, P_3]
     p4 = params[0, P_4]
     mu = params[0, P_MU]
+    pl0 = periodic_len[0]
+    pl1 = periodic_len[1]
+    pl2 = periodic_len[2]
+    for i in prange(n):
+        force[i, 0] = 0.0
+        force[i, 1] = 0.0
+        force[i, 2] = 0.0
+        torque[i, 0] = 0.0
+        torque[i, 1] = 0.0
+        torque[i, 2] = 0.0
+    for colour in range(3):
+        nq = (nslab - colour + 2) // 3
+        for q in prange(nq):
+            sl = colour + 3 * q
+            ovs = 0.0
+            for a in range(slab_start[sl], slab_start[sl + 1]):
+                xa = pos[a, 0]
+                ya = pos[a, 1]
+                za = pos[a, 2]
+                ra = radius[a]
+                ma = mass[a]
+                vax = vel[a, 0]
+                vay = vel[a, 1]
+                vaz = vel[a, 2]
+                wax = omg[a, 0]
+                way = omg[a, 1]
+                waz = omg[a, 2]
+                fax = 0.0
+                fay = 0.0
+                faz = 0.0
+                tax = 0.0
+                tay = 0.0
+                taz = 0.0
+                for k in range(first_start[a], first_start[a + 1]):
+                    b = pj[k]
+                    dx = _min_image(pos[b, 0] - xa, pl0)
+                    dy = _min_image(pos[b, 1] - ya, pl1)
+                    dz = _min_image(pos[b, 2] - za, pl2)
+                    rb = radius[b]
+                    rs = ra + rb
+                    d2 = dx * dx + dy * dy + dz * dz
+                    if d2 >= rs * rs:
+                        hist[k, 0] = 0.0
+                        hist[k, 1] = 0.0
+                        hist[k, 2] = 0.0
+                        if store:
+                            for c in range(6):
+                                pf[k, c] = 0.0
+                            for c in range(3):
+                                pr[k, c] = 0.0
+                        continue
+                    d = math.sqrt(d2)
+                    nx = dx / d
+                    ny = dy / d
+                    nz = dz / d
+                    dn = rs - d
+                    mb = mass[b]
+                    meff = ma * mb / (ma + mb)
+                    sx = ra * wax + rb * omg[b, 0]
+                    sy = ra * way + rb * omg[b, 1]
+                    sz = ra * waz + rb * omg[b, 2]
+                    vx = vax - vel[b, 0] + sy * nz - sz * ny
+                    vy = vay - vel[b, 1] + sz * nx - sx * nz
+                    vz = vaz - vel[b, 2] + sx * ny - sy * nx
+                    fx, fy, fz, tx, ty, tz, hx, hy, hz, fnabs = pair_law(
+                        model, p1, p2, p3, p4, mu, meff, ra * rb / rs, dn, nx, ny, nz, vx, vy, vz,
+                        hist[k, 0], hist[k, 1], hist[k, 2], dt_hist)
+                    hist[k, 0] = hx
+                    hist[k, 1] = hy
+                    hist[k, 2] = hz
+                    # n x F_t
+                    cx = ny * tz - nz * ty
+                    cy = nz * tx - nx * tz
+                    cz = nx * ty - ny * tx
+                    fax += fx
+                    fay += fy
+                    faz += fz
+                    tax += ra * cx
+                    tay += ra * cy
+                    taz += ra * cz
+                    force[b, 0] -= fx
+                    force[b, 1] -= fy
+                    force[b, 2] -= fz
+                    torque[b, 0] += rb * cx
+                    torque[b, 1] += rb * cy
+                    torque[b, 2] += rb * cz
+                    rx = 0.0
+                    ry = 0.0
+                    rz = 0.0
+                    if mur > 0.0:
+                        rx, ry, rz = rolling_torque_limited(
+                            mur, ra * rb / rs, fnabs, wax - omg[b, 0], way - omg[b, 1],
+                            waz - omg[b, 2], 1.0 / inertia[a] + 1.0 / inertia[b], dt)
+                        tax += rx
+                        tay += ry
+                        taz += rz
+                        torque[b, 0] -= rx
+                        torque[b, 1] -= ry
+                        torque[b, 2] -= rz
+                    if store:
+                        pf[k, 0] = fx
+                        pf[k, 1] = fy
+                        pf[k, 2] = fz
+                        pf[k, 3] = cx
+                        pf[k, 4] = cy
+                        pf[k, 5] = cz
+                        pr[k, 0] = rx
+                        pr[k, 1] = ry
+                        pr[k, 2] = rz
+                    ovs = max(ovs, dn / min(ra, rb))
+                force[a, 0] += fax
+                force[a, 1] += fay
+                force[a, 2] += faz
+                torque[a, 0] += tax
+                torque[a, 1] += tay
+                torque[a, 2] += taz
+            slab_ov[sl] = ovs
     ovmax = 0.0
-    for k in prange(npairs):
-        a = pi[k]
-        b = pj[k]
-        dx = _min_image(pos[b, 0] - pos[a, 0], periodic_len[0])
-        dy = _min_image(pos[b, 1] - pos[a, 1], periodic_len[1])
-        dz = _min_image(pos[b, 2] - pos[a, 2], periodic_len[2])
-        ra = radius[a]
-        rb = radius[b]
-        rs = ra + rb
-        d2 = dx * dx + dy * dy + dz * dz
-        if d2 >= rs * rs:
-            hist[k, 0] = 0.0
-            hist[k, 1] = 0.0
-            hist[k, 2] = 0.0
-            for c in range(6):
-                pf[k, c] = 0.0
-            if mur > 0.0:
-                pr[k, 0] = 0.0
-                pr[k, 1] = 0.0
-                pr[k, 2] = 0.0
-            continue
-        d = math.sqrt(d2)
-        nx = dx / d
-        ny = dy / d
-        nz = dz / d
-        dn = rs - d
-        ma = mass[a]
-        mb = mass[b]
-        meff = ma * mb / (ma + mb)
-        sx = ra * omg[a, 0] + rb * omg[b, 0]
-        sy = ra * omg[a, 1] + rb * omg[b, 1]
-        sz = ra * omg[a, 2] + rb * omg[b, 2]
-        vx = vel[a, 0] - vel[b, 0] + sy * nz - sz * ny
-        vy = vel[a, 1] - vel[b, 1] + sz * nx - sx * nz
-        vz = vel[a, 2] - vel[b, 2] + sx * ny - sy * nx
-        fx, fy, fz, tx, ty, tz, hx, hy, hz, fnabs = pair_law(
-            model, p1, p2, p3, p4, mu, meff, ra * rb / rs, dn, nx, ny, nz, vx, vy, vz,
-            hist[k, 0], hist[k, 1], hist[k, 2], dt_hist)
-        hist[k, 0] = hx
-        hist[k, 1] = hy
-        hist[k, 2] = hz
-        pf[k, 0] = fx
-        pf[k, 1] = fy
-        pf[k, 2] = fz
-        # n x F_t
-        cx = ny * tz - nz * ty
-        cy = nz * tx - nx * tz
-        cz = nx * ty - ny * tx
-        pf[k, 3] = cx
-        pf[k, 4] = cy
-        pf[k, 5] = cz
-        if mur > 0.0:
-            rx, ry, rz = rolling_torque_limited(
-                mur, ra * rb / rs, fnabs, omg[a, 0] - omg[b, 0], omg[a, 1] - omg[b, 1],
-                omg[a, 2] - omg[b, 2], 1.0 / inertia[a] + 1.0 / inertia[b], dt)
-            pr[k, 0] = rx
-            pr[k, 1] = ry
-            pr[k, 2] = rz
-        ovmax = max(ovmax, dn / min(ra, rb))
+    for sl in range(nslab):
+        ovmax = max(ovmax, slab_ov[sl])
     return ovmax
 
 
@@ -244,127 +331,52 @@ def _rolling_step(tmax, inert, dt, pwx, pwy, pwz):
 
 
 @parallel_kernel
-def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ext_f, ext_t, has_ext,
-                      pf, pr, has_roll, first_start, second_start, second_list,
-                      wgeom, wref, wpar, nw, whist, won, wfw, wtw, wfn,
-                      has_mesh, mstart, K, ms_mesh, ms_fn, ms_tw, mpar, mf, mt,
-                      gx, gy, gz, omx, omy, omz, cax, cay, caz,
-                      dt, dt_hist, kick, rotating, Rv, Rw, drift_next, periodic_len, plo, ref, held):
-    """Sum pair forces per particle (fixed order), add walls, gravity, centrifugal force, store
-    F and T, and (if ``kick``) do the closing half kick.
+def wall_forces(nl, plist, pos, vel, omg, force, torque, radius, mass, inertia, ext_t, has_ext,
+                wgeom, wref, wpar, nw, wmask, maxf, whist, won, wfw, wtw, wfn,
+                has_mesh, mstart, K, ms_mesh, ms_fn, ms_tw, mpar, mf, mt, dt, dt_hist):
+    """Add the walls' contacts (:func:`_particle_walls`) to ``force`` and ``torque`` of the ``nl``
+    particles ``plist`` (those within reach of a wall since the last rebuild, or with candidate
+    mesh triangles), after :func:`pair_forces`.  A pass of its own over those particles only:
+    the same code inside the loop over all particles (the pair pass, or the kick) cost that
+    loop more than this pass costs.
 
-    Wall rolling friction is applied here, after all other torques on the particle are known:
+    Wall rolling friction is applied last, when all other torques on the particle are known:
     with w' = w + dt (T + T_ext)/I the spin predicted without it, the rolling torque of a wall
-    contact is T_r = -I w'/dt if |I w'/dt| <= mu_r R |F_n| (the spin stops exactly: static rolling
-    resistance) else -mu_r R |F_n| w'/|w'|.  It never reverses the spin within the step.
+    contact is T_r = -I w'/dt if |I w'/dt| <= mu_r R |F_n| (the spin stops exactly: static
+    rolling resistance) else -mu_r R |F_n| w'/|w'|.  It never reverses the spin within the
+    step.  Analytic walls first, then the mesh slots (``ms_mesh``, |F_n| ``ms_fn``, parameters
+    ``mpar``), in order.
 
-    Mesh walls (``has_mesh``): their contact forces and torques were summed per particle into
-    mf, mt by :func:`cfddem.particles.mesh.mesh_forces` for the particles with candidate
-    triangles (``mstart[i] < mstart[i + 1]``); they are added after the analytic walls,
-    and their rolling friction (slots ``ms_mesh``, |F_n| ``ms_fn``, parameters ``mpar``) follows
-    the analytic walls' in the same way.
-
-    With ``drift_next`` the opening half kick and the drift of the *next* step follow at once
-    (the same operations as :func:`kick_drift`, so results do not depend on the fusion; it
-    saves one pass over the particles and one kernel launch per step).
-
-    Back of a wall: a wall contact that would *start* (the particle was not touching that wall
-    at the previous evaluation, ``won[i, w] == 0``) with an overlap above the radius, i.e. with
-    the centre behind the face of a plane, rectangle or annulus, is not a contact: the sphere
-    reached the one-sided wall from its back (from outside the region the walls enclose, e.g.
-    over the rim of a ring).  Without this rule the contact switched on at an overlap up to 2 r
-    and threw the particle out in one step.  The particle is marked behind that wall
-    (``won[i, w] = 2``; 1 = in contact, 0 = neither) and gets no contact from it until its
-    overlap ends.  Each such start is counted; the largest ``i * nw + w + 1`` among them names
-    one (particle row i, wall w) for the diagnosis.
-
-    Returns (count of particles with non-finite position/velocity/spin, max wall overlap ratio,
-    max |r - r_ref|^2 after the fused drift or 0, count of back-of-wall events, their largest
-    key i * nw + w + 1 or 0).
-    """
-    h = 0.5 * dt
-    rv00 = Rv[0, 0]
-    rv01 = Rv[0, 1]
-    rv02 = Rv[0, 2]
-    rv10 = Rv[1, 0]
-    rv11 = Rv[1, 1]
-    rv12 = Rv[1, 2]
-    rv20 = Rv[2, 0]
-    rv21 = Rv[2, 1]
-    rv22 = Rv[2, 2]
-    rw00 = Rw[0, 0]
-    rw01 = Rw[0, 1]
-    rw02 = Rw[0, 2]
-    rw10 = Rw[1, 0]
-    rw11 = Rw[1, 1]
-    rw12 = Rw[1, 2]
-    rw20 = Rw[2, 0]
-    rw21 = Rw[2, 1]
-    rw22 = Rw[2, 2]
-    bad = 0
+    Returns (the largest wall overlap ratio, the count of back-of-wall events, their largest
+    key i * nw + w + 1 or 0)."""
+    ovmax = 0.0
     nback = 0
     kback = 0
-    ovmax = 0.0
-    m2 = 0.0
-    for i in prange(n):
-        fx = 0.0
-        fy = 0.0
-        fz = 0.0
-        tx = 0.0
-        ty = 0.0
-        tz = 0.0
+    for q in prange(nl):
+        i = plist[q]
         r = radius[i]
-        efx = 0.0
-        efy = 0.0
-        efz = 0.0
-        etx = 0.0
-        ety = 0.0
-        etz = 0.0
-        if has_ext:
-            efx = ext_f[i, 0]
-            efy = ext_f[i, 1]
-            efz = ext_f[i, 2]
-            etx = ext_t[i, 0]
-            ety = ext_t[i, 1]
-            etz = ext_t[i, 2]
-        for k in range(first_start[i], first_start[i + 1]):
-            fx += pf[k, 0]
-            fy += pf[k, 1]
-            fz += pf[k, 2]
-            tx += r * pf[k, 3]
-            ty += r * pf[k, 4]
-            tz += r * pf[k, 5]
-            if has_roll:
-                tx += pr[k, 0]
-                ty += pr[k, 1]
-                tz += pr[k, 2]
-        for s in range(second_start[i], second_start[i + 1]):
-            k = second_list[s]
-            fx -= pf[k, 0]
-            fy -= pf[k, 1]
-            fz -= pf[k, 2]
-            tx += r * pf[k, 3]
-            ty += r * pf[k, 4]
-            tz += r * pf[k, 5]
-            if has_roll:
-                tx -= pr[k, 0]
-                ty -= pr[k, 1]
-                tz -= pr[k, 2]
+        inert = inertia[i]
         x = pos[i, 0]
         y = pos[i, 1]
         z = pos[i, 2]
         m = mass[i]
-        inert = inertia[i]
-        im = 1.0 / m
-        ii = 1.0 / inert
         vx = vel[i, 0]
         vy = vel[i, 1]
         vz = vel[i, 2]
         wx = omg[i, 0]
         wy = omg[i, 1]
         wz = omg[i, 2]
+        mk = wmask[i]
         anyroll = False
+        fx = 0.0
+        fy = 0.0
+        fz = 0.0
+        tx = 0.0
+        ty = 0.0
+        tz = 0.0
         for w in range(nw):
+            if w < maxf and (mk >> w) & 1 == 0:
+                continue  # not within reach since the last rebuild (walls.wall_candidates)
             ov, nx, ny, nz, qx, qy, qz = wall_contact_s(
                 wgeom[w, 0], wgeom[w, 1], wgeom[w, 2], wgeom[w, 3], wgeom[w, 4], wgeom[w, 5],
                 wgeom[w, 6], wgeom[w, 7], wgeom[w, 8], wgeom[w, 9], wgeom[w, 10], wgeom[w, 11],
@@ -427,10 +439,25 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
             tx += mt[i, 0]
             ty += mt[i, 1]
             tz += mt[i, 2]
+        # the pair contacts' sums first, then the walls (one order for every thread count)
+        fx = force[i, 0] + fx
+        fy = force[i, 1] + fy
+        fz = force[i, 2] + fz
+        tx = torque[i, 0] + tx
+        ty = torque[i, 1] + ty
+        tz = torque[i, 2] + tz
+        if has_mesh and mstart[i] < mstart[i + 1]:
             for s in range(K):
                 if ms_mesh[i, s] >= 0 and mpar[ms_mesh[i, s], P_MUR] > 0.0:
                     anyroll = True
         if anyroll:
+            etx = 0.0
+            ety = 0.0
+            etz = 0.0
+            if has_ext:
+                etx = ext_t[i, 0]
+                ety = ext_t[i, 1]
+                etz = ext_t[i, 2]
             pwx = wx + dt * (tx + etx) / inert
             pwy = wy + dt * (ty + ety) / inert
             pwz = wz + dt * (tz + etz) / inert
@@ -460,10 +487,86 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
                     ms_tw[i, s, 0] -= rx
                     ms_tw[i, s, 1] -= ry
                     ms_tw[i, s, 2] -= rz
-        # body forces: gravity and centrifugal -m Omega x (Omega x (r - r_axis))
-        fx += m * gx
-        fy += m * gy
-        fz += m * gz
+        force[i, 0] = fx
+        force[i, 1] = fy
+        force[i, 2] = fz
+        torque[i, 0] = tx
+        torque[i, 1] = ty
+        torque[i, 2] = tz
+    return ovmax, nback, kback
+
+
+@parallel_kernel
+def body_kick(n, pos, vel, omg, force, torque, mass, inertia, ext_f, ext_t, has_ext, gx, gy, gz, omx, omy, omz, cax, cay, caz,
+              dt, kick, rotating, Rv, Rw, drift_next, periodic_len, plo, ref, held, dux, duy, duz):
+    """Add gravity and the centrifugal force -m Omega x (Omega x (r - r_axis)) to the contact
+    forces in ``force`` (:func:`pair_forces`, :func:`wall_forces`), and (if ``kick``) do the
+    closing half kick.
+
+    With ``drift_next`` the opening half kick and the drift of the *next* step follow at once
+    (the same operations as :func:`kick_drift`, so results do not depend on the fusion; it
+    saves one pass over the particles and one kernel launch per step).
+
+    Returns (count of particles with non-finite position/velocity/spin, then after the fused
+    drift (zeros without it) the displacements' maxima of :func:`kick_drift`).
+    """
+    h = 0.5 * dt
+    rv00 = Rv[0, 0]
+    rv01 = Rv[0, 1]
+    rv02 = Rv[0, 2]
+    rv10 = Rv[1, 0]
+    rv11 = Rv[1, 1]
+    rv12 = Rv[1, 2]
+    rv20 = Rv[2, 0]
+    rv21 = Rv[2, 1]
+    rv22 = Rv[2, 2]
+    rw00 = Rw[0, 0]
+    rw01 = Rw[0, 1]
+    rw02 = Rw[0, 2]
+    rw10 = Rw[1, 0]
+    rw11 = Rw[1, 1]
+    rw12 = Rw[1, 2]
+    rw20 = Rw[2, 0]
+    rw21 = Rw[2, 1]
+    rw22 = Rw[2, 2]
+    bad = 0
+    m2 = 0.0
+    r2 = 0.0
+    mx = 0.0
+    my = 0.0
+    mz = 0.0
+    for i in prange(n):
+        efx = 0.0
+        efy = 0.0
+        efz = 0.0
+        etx = 0.0
+        ety = 0.0
+        etz = 0.0
+        if has_ext:
+            efx = ext_f[i, 0]
+            efy = ext_f[i, 1]
+            efz = ext_f[i, 2]
+            etx = ext_t[i, 0]
+            ety = ext_t[i, 1]
+            etz = ext_t[i, 2]
+        x = pos[i, 0]
+        y = pos[i, 1]
+        z = pos[i, 2]
+        m = mass[i]
+        im = 1.0 / m
+        ii = 1.0 / inertia[i]
+        vx = vel[i, 0]
+        vy = vel[i, 1]
+        vz = vel[i, 2]
+        wx = omg[i, 0]
+        wy = omg[i, 1]
+        wz = omg[i, 2]
+        fx = force[i, 0] + m * gx
+        fy = force[i, 1] + m * gy
+        fz = force[i, 2] + m * gz
+        tx = torque[i, 0]
+        ty = torque[i, 1]
+        tz = torque[i, 2]
         if rotating:
             px = x - cax
             py = y - cay
@@ -476,17 +579,14 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
         force[i, 0] = fx
         force[i, 1] = fy
         force[i, 2] = fz
-        torque[i, 0] = tx
-        torque[i, 1] = ty
-        torque[i, 2] = tz
         free = held[i] == 0
         if kick and free:
             vx, vy, vz = _half_kick(vx, vy, vz, (fx + efx) * im, (fy + efy) * im,
-                                    (fz + efz) * im, h, rotating, 
-                                rv00, rv01, rv02, rv10, rv11, rv12, rv20, rv21, rv22)
+                                    (fz + efz) * im, h, rotating,
+                                    rv00, rv01, rv02, rv10, rv11, rv12, rv20, rv21, rv22)
             wx, wy, wz = _half_kick(wx, wy, wz, (tx + etx) * ii, (ty + ety) * ii,
-                                    (tz + etz) * ii, h, rotating, 
-                                rw00, rw01, rw02, rw10, rw11, rw12, rw20, rw21, rw22)
+                                    (tz + etz) * ii, h, rotating,
+                                    rw00, rw01, rw02, rw10, rw11, rw12, rw20, rw21, rw22)
             vel[i, 0] = vx
             vel[i, 1] = vy
             vel[i, 2] = vz
@@ -497,18 +597,15 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
         tsum = x + y + z + vx + vy + vz + wx + wy + wz
         if not (tsum - tsum == 0.0):
             bad += 1
-        d2 = 0.0
         if drift_next:
-            im2 = im
-            ii2 = ii
             ux, uy, uz = vx, vy, vz
             sx2, sy2, sz2 = wx, wy, wz
             if free:
-                ux, uy, uz = _half_kick(vx, vy, vz, (fx + efx) * im2, (fy + efy) * im2,
-                                        (fz + efz) * im2, h, rotating,
+                ux, uy, uz = _half_kick(vx, vy, vz, (fx + efx) * im, (fy + efy) * im,
+                                        (fz + efz) * im, h, rotating,
                                         rv00, rv01, rv02, rv10, rv11, rv12, rv20, rv21, rv22)
-                sx2, sy2, sz2 = _half_kick(wx, wy, wz, (tx + etx) * ii2, (ty + ety) * ii2,
-                                           (tz + etz) * ii2, h, rotating,
+                sx2, sy2, sz2 = _half_kick(wx, wy, wz, (tx + etx) * ii, (ty + ety) * ii,
+                                           (tz + etz) * ii, h, rotating,
                                            rw00, rw01, rw02, rw10, rw11, rw12, rw20, rw21, rw22)
             vel[i, 0] = ux
             vel[i, 1] = uy
@@ -530,9 +627,15 @@ def gather_walls_kick(n, pos, vel, omg, force, torque, radius, mass, inertia, ex
             ex = _min_image(pos[i, 0] - ref[i, 0], periodic_len[0])
             ey = _min_image(pos[i, 1] - ref[i, 1], periodic_len[1])
             ez = _min_image(pos[i, 2] - ref[i, 2], periodic_len[2])
-            d2 = ex * ex + ey * ey + ez * ez
-        m2 = max(m2, d2)
-    return bad, ovmax, m2, nback, kback
+            m2 = max(m2, ex * ex + ey * ey + ez * ez)
+            qx = ex - dux
+            qy = ey - duy
+            qz = ez - duz
+            r2 = max(r2, qx * qx + qy * qy + qz * qz)
+            mx = max(mx, abs(ex))
+            my = max(my, abs(ey))
+            mz = max(mz, abs(ez))
+    return bad, m2, r2, mx, my, mz
 
 
 @kernel
@@ -702,4 +805,5 @@ def clump_velocity_zones(nb, start, members, com, bvel, vfix, pvel, zones, nz):
 
 kick_drift_s = serial_twin(kick_drift)
 pair_forces_s = serial_twin(pair_forces)
-gather_walls_kick_s = serial_twin(gather_walls_kick)
+body_kick_s = serial_twin(body_kick)
+wall_forces_s = serial_twin(wall_forces)

@@ -73,6 +73,7 @@ import numpy as np
 
 from cfddem._jit import kernel, parallel_kernel, prange
 from cfddem.particles._twin import serial_twin
+from cfddem.particles.neighbours import grid_strides
 from cfddem.errors import CaseError
 from cfddem.particles.contact import P_1, P_2, P_3, P_4, P_MODEL, P_MU, wall_contact_force
 
@@ -975,7 +976,7 @@ def _tri_cells(T, t, lo, size, nc, cut, start, cells, tris, fill):
                                                          lo[2] + (cz + 0.5) * size[2])
                 if d2 < lim2:
                     if fill:
-                        cells[start + cnt] = (cx * nc[1] + cy) * nc[2] + cz
+                        cells[start + cnt] = cx * nc[3] + cy * nc[4] + cz * nc[5]
                         tris[start + cnt] = t
                     cnt += 1
     return cnt
@@ -1000,7 +1001,7 @@ def _cell_of(x, y, z, lo, size, nc):
     cx = min(max(int((x - lo[0]) / size[0]), 0), nc[0] - 1)
     cy = min(max(int((y - lo[1]) / size[1]), 0), nc[1] - 1)
     cz = min(max(int((z - lo[2]) / size[2]), 0), nc[2] - 1)
-    return (cx * nc[1] + cy) * nc[2] + cz
+    return cx * nc[3] + cy * nc[4] + cz * nc[5]
 
 
 @parallel_kernel
@@ -1046,7 +1047,7 @@ def chord_grid(T) -> tuple:
     h = max(float(np.mean(np.sqrt(T[:, [12, 14, 16]]))), 1e-6 * diag)
     while np.prod(np.floor(L / h) + 1) > 4e6:
         h *= 1.25
-    nc = (np.floor(L / h) + 1).astype(np.int64)
+    nc = grid_strides((np.floor(L / h) + 1).astype(np.int64))
     size = np.full(3, h)
     cut = 1e-9 * diag
     counts = np.zeros(nt, np.int64)
@@ -1057,7 +1058,7 @@ def chord_grid(T) -> tuple:
     tris = np.empty(int(start[-1]), np.int64)
     tri_cell_fill(T, nt, lo, size, nc, cut, start, cells, tris)
     order = np.argsort(cells, kind="stable")
-    ncell = int(np.prod(nc))
+    ncell = int(np.prod(nc[:3]))
     ctstart = np.zeros(ncell + 1, np.int64)
     np.cumsum(np.bincount(cells, minlength=ncell), out=ctstart[1:])
     return T, lo, size, nc, ctstart, np.ascontiguousarray(tris[order])
@@ -1094,7 +1095,7 @@ def chord_crossings(n, a, b, T, lo, size, nc, ctstart, ctri, ftri, fs, fh, ntest
         for cx in range(ix0, ix1 + 1):
             for cy in range(iy0, iy1 + 1):
                 for cz in range(iz0, iz1 + 1):
-                    cell = (cx * nc[1] + cy) * nc[2] + cz
+                    cell = cx * nc[3] + cy * nc[4] + cz * nc[5]
                     for j in range(ctstart[cell], ctstart[cell + 1]):
                         t = ctri[j]
                         cnt += 1

@@ -83,7 +83,43 @@ def cell_grid(pos, n, rmax, skin, plo, phi, periodic, max_cells=None, serial=Fal
         c *= 1.25
     size = np.where(nc > 0, length / nc, 1.0)
     size = np.maximum(size, 1e-300)
-    return lo, size, nc
+    return lo, size, grid_strides(nc, int(np.argmax(nc)))
+
+
+def grid_strides(nc, major: int = 0) -> np.ndarray:
+    """The cell counts ``nc`` (3) followed by the strides of the linear cell index
+    ``c = cx * nc[3] + cy * nc[4] + cz * nc[5]`` (6 int64 in all): axis ``major`` varies
+    slowest, the other two in their order.  With the axis of most cells as the major one, a
+    layer of cells across it is a contiguous range of cells (and of cell-sorted particles): the
+    slabs of the force pass (:func:`slab_starts`), and neighbours that sit close in memory."""
+    nc = np.asarray(nc, np.int64)[:3]
+    rest = [a for a in range(3) if a != major]
+    st = np.zeros(3, np.int64)
+    st[rest[1]] = 1
+    st[rest[0]] = nc[rest[1]]
+    st[major] = nc[rest[0]] * nc[rest[1]]
+    return np.concatenate([nc, st])
+
+
+def slab_starts(nc, cell_start, periodic) -> np.ndarray:
+    """Particle ranges of the slabs of the force pass: layers of cells across the major axis
+    (the axis of most cells, the first of equals, as :func:`cell_grid` chose it), cell-sorted particles ``out[s] .. out[s + 1] - 1``.
+
+    A pair of the list joins two particles of the same or of neighbouring layers, so slabs
+    three apart never share a particle: the force pass runs the slabs s = 0, 3, 6, ... in
+    parallel, then 1, 4, ..., then 2, 5, ... (:func:`cfddem.particles.integrate.pair_forces`).
+    Along a periodic major axis the last slab neighbours the first, so the number of slabs is
+    made a multiple of three (adjacent layers merged).  The slabs depend on the cells only,
+    never on the thread count: the order in which each particle's forces are summed, and so
+    the result, is the same for any number of threads."""
+    major = int(np.argmax(nc[:3]))
+    nl = int(nc[major])
+    stride = int(nc[3 + major])
+    ns = nl
+    if periodic[major] and nl >= 3:
+        ns = 3 * (nl // 3)
+    layers = (np.arange(ns + 1, dtype=np.int64) * nl) // ns
+    return np.ascontiguousarray(cell_start[layers * stride], dtype=np.int64)
 
 
 @kernel
@@ -103,7 +139,7 @@ def cell_sort(pos, n, lo, size, nc, cell_of, order, cell_start):
         cx = min(max(cx, 0), nc[0] - 1)
         cy = min(max(cy, 0), nc[1] - 1)
         cz = min(max(cz, 0), nc[2] - 1)
-        c = (cx * nc[1] + cy) * nc[2] + cz
+        c = cx * nc[3] + cy * nc[4] + cz * nc[5]
         cell_of[i] = c
         cell_start[c + 1] += 1
     for c in range(ncell):
@@ -159,6 +195,9 @@ def pair_count(pos, radius, n, skin, lo, size, nc, periodic_len, cell_start, cou
     nc0 = nc[0]
     nc1 = nc[1]
     nc2 = nc[2]
+    st0 = nc[3]
+    st1 = nc[4]
+    st2 = nc[5]
     lo0 = lo[0]
     lo1 = lo[1]
     lo2 = lo[2]
@@ -173,7 +212,7 @@ def pair_count(pos, radius, n, skin, lo, size, nc, periodic_len, cell_start, cou
         cx = min(max(int((xi - lo0) / sz0), 0), nc0 - 1)
         cy = min(max(int((yi - lo1) / sz1), 0), nc1 - 1)
         cz = min(max(int((zi - lo2) / sz2), 0), nc2 - 1)
-        me = (cx * nc1 + cy) * nc2 + cz
+        me = cx * st0 + cy * st1 + cz * st2
         cnt = 0
         for ox in range(-1, 2):
             ax = cx + ox
@@ -199,7 +238,7 @@ def pair_count(pos, radius, n, skin, lo, size, nc, periodic_len, cell_start, cou
                         az = az % nc2
                     elif az < 0 or az >= nc2:
                         continue
-                    c = (ax * nc1 + ay) * nc2 + az
+                    c = ax * st0 + ay * st1 + az * st2
                     if c < me:
                         continue
                     for j in range(max(cell_start[c], i + 1), cell_start[c + 1]):
@@ -228,6 +267,9 @@ def pair_fill(pos, radius, n, skin, lo, size, nc, periodic_len, cell_start, firs
     nc0 = nc[0]
     nc1 = nc[1]
     nc2 = nc[2]
+    st0 = nc[3]
+    st1 = nc[4]
+    st2 = nc[5]
     lo0 = lo[0]
     lo1 = lo[1]
     lo2 = lo[2]
@@ -242,7 +284,7 @@ def pair_fill(pos, radius, n, skin, lo, size, nc, periodic_len, cell_start, firs
         cx = min(max(int((xi - lo0) / sz0), 0), nc0 - 1)
         cy = min(max(int((yi - lo1) / sz1), 0), nc1 - 1)
         cz = min(max(int((zi - lo2) / sz2), 0), nc2 - 1)
-        me = (cx * nc1 + cy) * nc2 + cz
+        me = cx * st0 + cy * st1 + cz * st2
         k = first_start[i]
         kend = first_start[i + 1]
         for ox in range(-1, 2):
@@ -269,7 +311,7 @@ def pair_fill(pos, radius, n, skin, lo, size, nc, periodic_len, cell_start, firs
                         az = az % nc2
                     elif az < 0 or az >= nc2:
                         continue
-                    c = (ax * nc1 + ay) * nc2 + az
+                    c = ax * st0 + ay * st1 + az * st2
                     if c < me:
                         continue
                     for j in range(max(cell_start[c], i + 1), cell_start[c + 1]):
@@ -411,3 +453,4 @@ def permute_rows(a, order, n, scratch, serial):
         (copy_rows_s if serial else copy_rows)(out, n, a2)
     else:
         a[:n] = a[order]
+

@@ -27,7 +27,8 @@ from cfddem.particles import integrate as it
 from cfddem.particles import neighbours as nb
 from cfddem.particles import mesh as mw
 from cfddem.particles.contact import P_MU, P_MUR, ContactLaw
-from cfddem.particles.walls import KIND_OFF, Wall, pack_walls
+from cfddem.particles import walls as wl
+from cfddem.particles.walls import KIND_OFF, MAX_FILTERED_WALLS, Wall, pack_walls
 
 
 @dataclass
@@ -95,6 +96,21 @@ class ParticleSystem:
         self._skin_user = skin
         self._pp_params = pp.params().reshape(1, -1)
         self._has_roll = pp.mu_r > 0.0
+        # slabs of the force pass (neighbours.slab_starts), set at each neighbour rebuild
+        self._slab_start = np.zeros(2, np.int64)
+        self._slab_ov = np.zeros(1)
+        self._slab_back = np.zeros((1, 2), np.int64)
+        self._no_pf = np.zeros((1, 6))
+        self._no_pr = np.zeros((1, 3))
+        # walls within each particle's reach (walls.wall_candidates), set at each rebuild
+        self._wmask = np.zeros(1, np.int64)
+        self._wfilt = np.zeros(1, np.int64)
+        self._wall_candidates = 0
+        self._wbound = np.zeros((0, 4))
+        self._ndrift = 0  # drifts since the last rebuild
+        self._ubar = np.zeros(3)  # mean velocity at the last rebuild
+        self._pending_disp = None
+        self._wplist = np.zeros(0, np.int64)  # particles near a wall (it.wall_forces)
         self._friction_built = None  # (mu, mu_r) of the contact tables as built (set_friction)
         self._has_ext = False
         self._wgeom, self._wref, self._wpar = pack_walls(self.walls)
@@ -186,7 +202,7 @@ class ParticleSystem:
 
     def _alloc_pairs(self, pcap, cap):
         return dict(pcap=pcap, pi=np.zeros(pcap, np.int64), pj=np.zeros(pcap, np.int64),
-                    hist=np.zeros((pcap, 3)), pf=np.zeros((pcap, 6)), pr=np.zeros((pcap, 3)),
+                    hist=np.zeros((pcap, 3)),
                     second_list=np.zeros(pcap, np.int64),
                     first_start=np.zeros(cap + 1, np.int64), second_start=np.zeros(cap + 1, np.int64),
                     counts=np.zeros(cap, np.int64))
@@ -327,6 +343,9 @@ class ParticleSystem:
         order = np.empty(n, np.int64)
         cell_start = np.empty(ncell + 1, np.int64)
         nb.cell_sort(self._pos, n, lo, size, nc, cell_of, order, cell_start)
+        self._slab_start = nb.slab_starts(nc, cell_start, self._periodic)
+        self._slab_ov = np.zeros(max(len(self._slab_start) - 1, 1))
+        self._slab_back = np.zeros((len(self._slab_ov), 2), np.int64)
         # reorder particle arrays by cell (prev keeps each particle's index at the last build)
         ser = self._serial(n)
         width = 3 * max(self.nw, self._K, 1)
@@ -368,12 +387,88 @@ class ParticleSystem:
         self._skin_built = skin
         if self.nm:
             self._mesh_lists(lo, size, nc, rmax, skin, ser)
+        self._wall_lists(skin, ser)
         self._prev[:n] = np.arange(n)
         self._ref[:n] = self._pos[:n]
+        self._ndrift = 0
+        self._ubar = np.zeros(3) if self._has_clumps() else self._vel[:n].mean(axis=0)
         if self._has_clumps():
             self.clumps.rebuild_csr(self._body[:n], self._ids[:n])
         self._need_rebuild = False
         self.n_rebuilds += 1
+
+    def _bed_drift(self, ahead: int) -> np.ndarray:
+        """The bed's estimated common displacement since the last rebuild after ``ahead`` more
+        drifts: the mean velocity at the rebuild times the time drifted (any vector is a valid
+        reference for :meth:`_expired`; this one makes a bed moving as a whole keep its lists).
+        Zero for clumps (whose members' displacements take the plain test)."""
+        return self._ubar * (self.dt * (self._ndrift + ahead))
+
+    def _expired(self, m2: float, disp) -> bool:
+        """Whether the neighbour, wall and mesh lists may miss a contact after this drift.
+
+        ``disp`` = (max |d|^2, max |d - u|^2, max |d_x|, max |d_y|, max |d_z|) over the
+        particles' displacements d since the last rebuild (u = :meth:`_bed_drift`), or None (the
+        plain test: max |d| beyond half the skin).
+
+        Pairs: a pair left out of the list was farther apart than R_i + R_j + skin and can touch
+        only once |d_i - d_j| > skin; |d_i - d_j| <= |d_i - u| + |d_j - u| <= 2 max |d - u| for
+        any u.  So the pairs hold while max |d - u| <= skin/2 (with u = 0 the classic test), and
+        a bed moving as a whole does not call for rebuilds, only its particles' relative motion.
+        Standing walls: a particle is a candidate of wall w while its reach
+        (:func:`cfddem.particles.walls.wall_reach`) is below r + skin; the reach of a plane,
+        rectangle or annulus of normal n changes by at most |d.n| <= sum_a max|d_a| |n_a|, of a
+        cylinder by at most |d|: a bed sliding along its walls keeps its wall lists.  Meshes:
+        the largest |d| plus the meshes' own motion stays below the skin."""
+        skin = self._skin_built
+        if disp is None or not math.isfinite(m2):
+            return not m2 <= (0.5 * skin) ** 2 or self._mt.disp > 0.5 * skin
+        _, r2, mx, my, mz = disp
+        if not r2 <= (0.5 * skin) ** 2:
+            return True
+        if self.nm and math.sqrt(m2) + self._mt.disp > skin:
+            return True
+        if len(self._wbound):
+            b = self._wbound[:, 0] * mx + self._wbound[:, 1] * my + self._wbound[:, 2] * mz
+            b = np.where(self._wbound[:, 3] > 0.0, math.sqrt(m2), b)
+            if b.max() > skin:
+                return True
+        return False
+
+    def _wall_lists(self, skin, ser):
+        """Each particle's analytic walls within reach until the next rebuild (a bit mask;
+        :func:`cfddem.particles.walls.wall_candidates`): standing walls are filtered, moving
+        ones visited by every particle."""
+        n, nw = self.n, self.nw
+        if len(self._wmask) < max(n, 1):
+            self._wmask = np.zeros(max(self._cap, n, 1), np.int64)
+        self._wfilt = np.zeros(max(nw, 1), np.int64)
+        if nw:
+            self._wfilt[:nw] = np.all(self._wgeom[:nw, 16:19] == 0.0, axis=1)
+        (wl.wall_candidates_s if ser else wl.wall_candidates)(
+            n, self._pos, self._radius, skin, self._wgeom, nw, MAX_FILTERED_WALLS, self._wfilt, self._wmask,
+            self._won, self._wfn, self._whist, self._wfw, self._wtw)
+        # (particle, wall) candidates: the bits set
+        self._wall_candidates = int(np.unpackbits(self._wmask[:n].view(np.uint8)).sum())
+        # what the rebuild test (_expired) needs of the standing walls: |n| (planes, rectangles,
+        # annuli) or a flag for cylinders, for each filtered wall that is on
+        nwf = min(nw, MAX_FILTERED_WALLS)
+        on = [w for w in range(nwf) if self._wfilt[w] and self._wgeom[w, 0] >= 0.0]
+        self._wbound = np.zeros((len(on), 4))
+        for k, w in enumerate(on):
+            self._wbound[k, :3] = np.abs(self._wgeom[w, 4:7])
+            self._wbound[k, 3] = 1.0 if self._wgeom[w, 0] == 2.0 else 0.0
+        self._wall_plist()
+
+    def _wall_plist(self):
+        """The particles the wall pass visits: walls within reach, or candidate mesh triangles."""
+        n = self._n_built
+        near = self._wmask[:n] != 0
+        if self.nw > MAX_FILTERED_WALLS:
+            near[:] = True
+        if self.nm:
+            near |= self._mstart[1: n + 1] > self._mstart[:n]
+        self._wplist = np.flatnonzero(near).astype(np.int64)
 
     def _mesh_lists(self, lo, size, nc, rmax, skin, ser):
         """Bin the triangles into the particle cells and build each particle's candidate
@@ -440,22 +535,31 @@ class ParticleSystem:
                 self._ms_q, self._ms_h, self._ms_ov, self._ms_fn, self._ms_fw, self._ms_tw, self._mf,
                 self._mtq, self._mstat, dt_hist)
             self._mesh_over = int(over)
-        ov_pp = (it.pair_forces_s if ser else it.pair_forces)(self._npairs, cur["pi"], cur["pj"], self._pos, self._vel, self._omega,
-                               self._radius, self._mass, self._inertia, self._pp_params, self._plen,
-                               cur["hist"], cur["pf"], cur["pr"], self.dt, dt_hist)
+        ov_pp = self._pair_pass(self._force, self._torque, cur["hist"], False, self._no_pf, self._no_pr,
+                                dt_hist, ser)
+        ov_w, nback, kback = 0.0, 0, 0
+        nl = len(self._wplist)
+        if nl:
+            ov_w, nback, kback = (it.wall_forces_s if self._serial(nl) else it.wall_forces)(
+                nl, self._wplist, self._pos, self._vel, self._omega, self._force, self._torque, self._radius,
+                self._mass, self._inertia, self._ext_torque, self._has_ext, self._wgeom, self._wref, self._wpar,
+                self.nw, self._wmask, MAX_FILTERED_WALLS, self._whist, self._won, self._wfw, self._wtw, self._wfn,
+                self.nm > 0, self._mstart, self._K, self._ms_mesh, self._ms_fn, self._ms_tw, self._mt.par,
+                self._mf, self._mtq, self.dt, dt_hist)
         g, om, ap = self.gravity, self.frame_omega, self.axis_point
-        drift_next = drift_next and max(ov_pp, ov_m) <= self.max_overlap_ratio_limit and not self._mesh_over
-        bad, ov_w, m2, nback, kback = (it.gather_walls_kick_s if ser else it.gather_walls_kick)(
-            self.n, self._pos, self._vel, self._omega, self._force, self._torque, self._radius,
-            self._mass, self._inertia, self._ext_force, self._ext_torque, self._has_ext, cur["pf"], cur["pr"],
-            self._has_roll, cur["first_start"], cur["second_start"], cur["second_list"],
-            self._wgeom, self._wref, self._wpar, self.nw, self._whist, self._won, self._wfw,
-            self._wtw, self._wfn, self.nm > 0, self._mstart, self._K, self._ms_mesh, self._ms_fn, self._ms_tw,
-            self._mt.par, self._mf, self._mtq, g[0], g[1], g[2], om[0], om[1], om[2], ap[0], ap[1], ap[2],
-            self.dt, dt_hist, kick, self._rotating, self._Rv, self._Rw, drift_next, self._plen,
-            self._plo, self._ref, self._held)
+        drift_next = (drift_next and max(ov_pp, ov_m, ov_w) <= self.max_overlap_ratio_limit
+                      and not self._mesh_over)
+        u = self._bed_drift(1 if drift_next else 0)
+        bad, *disp = (it.body_kick_s if ser else it.body_kick)(
+            self.n, self._pos, self._vel, self._omega, self._force, self._torque, self._mass, self._inertia,
+            self._ext_force, self._ext_torque, self._has_ext, g[0], g[1], g[2], om[0], om[1], om[2],
+            ap[0], ap[1], ap[2], self.dt, kick, self._rotating, self._Rv, self._Rw, drift_next, self._plen,
+            self._plo, self._ref, self._held, u[0], u[1], u[2])
         self._last_ov = max(ov_pp, ov_w, ov_m)
-        self._pending_m2 = m2 if drift_next else -1.0
+        self._pending_m2 = disp[0] if drift_next else -1.0
+        if drift_next:
+            self._pending_disp = disp
+            self._ndrift += 1
         if nback:
             i, w = divmod(int(kback) - 1, self.nw)
             self.wall_back_count += int(nback)
@@ -463,6 +567,38 @@ class ParticleSystem:
                 self.wall_back_events.append((self.step_count + (1 if kick else 0), int(self._ids[i]),
                                               self.walls[w].name or f"#{w}", int(nback)))
         return bad
+
+    def _pair_pass(self, force, torque, hist, store, pf, pr, dt_hist, ser):
+        cur = self._cur
+        return (it.pair_forces_s if ser else it.pair_forces)(
+            self.n, len(self._slab_start) - 1, self._slab_start, self._slab_ov, cur["first_start"],
+            cur["pj"],
+            self._pos, self._vel, self._omega, self._radius, self._mass, self._inertia, self._pp_params,
+            self._plen, hist, force, torque, store, pf, pr, self.dt, dt_hist)
+
+    def pair_forces(self) -> dict:
+        """The contact forces pair by pair at the current state (between steps): ``pi``, ``pj``
+        (rows of the particle arrays, the list's pairs), ``force`` (npairs, 3) on ``pi`` from
+        ``pj`` (zero where they do not touch), ``nxft`` (npairs, 3) n x F_t (the torques are
+        R_a and R_b times it) and ``rolling`` (npairs, 3) the rolling torque on ``pi``.
+
+        The step sums the pairs' forces into each particle without keeping them; this
+        evaluates the contact laws once more at the current positions and velocities without
+        advancing the tangential springs (the forces a restart would start from), and leaves
+        the system as it was."""
+        if self._forces_stale or self._need_rebuild:
+            st = self._refresh()
+            if st is not None:
+                raise RuntimeError(st.message)
+        n, npairs = self.n, self._npairs
+        pf = np.zeros((max(npairs, 1), 6))
+        pr = np.zeros((max(npairs, 1), 3))
+        if n:
+            self._pair_pass(np.zeros((n, 3)), np.zeros((n, 3)), self._cur["hist"][: max(npairs, 1)].copy(),
+                            True, pf, pr, 0.0, self._serial(n))
+        cur = self._cur
+        return dict(pi=cur["pi"][:npairs].copy(), pj=cur["pj"][:npairs].copy(), force=pf[:npairs, :3],
+                    nxft=pf[:npairs, 3:], rolling=pr[:npairs])
 
     def _refresh(self):
         """After insertion/removal: rebuild and re-evaluate forces at the current state without
@@ -509,22 +645,26 @@ class ParticleSystem:
         for s in range(n_steps):
             if self._pending_m2 >= 0.0:
                 # the opening kick + drift of this step were fused into the previous gather
-                m2 = self._pending_m2
+                disp = self._pending_disp
                 self._pending_m2 = -1.0
             else:
                 kd = it.kick_drift_s if self._serial(self.n) else it.kick_drift
-                m2 = kd(self.n, self._pos, self._vel, self._omega, self._force, self._torque,
-                        self._mass, self._inertia, self._ext_force, self._ext_torque, self._has_ext, dt,
-                        self._rotating, self._Rv, self._Rw, self._plen, self._plo, self._ref, self._held)
+                u = self._bed_drift(1)
+                disp = kd(self.n, self._pos, self._vel, self._omega, self._force, self._torque,
+                          self._mass, self._inertia, self._ext_force, self._ext_torque, self._has_ext, dt,
+                          self._rotating, self._Rv, self._Rw, self._plen, self._plo, self._ref, self._held,
+                          u[0], u[1], u[2])
+                self._ndrift += 1
+            m2 = disp[0]
             if clumped:  # bodies: opening kick, rotation, drift; members follow
                 m2 = max(m2, self._clump_open())
+                disp = None  # (members' displacements: the plain test)
             if len(self._moving):
                 # walls move with the particles' drift: geometry at t + dt for the new forces
                 self._translate_moving_walls(dt)
             if self.nm:
                 self._move_meshes(self.time + dt)
-            if (m2 > (0.5 * self._skin_built) ** 2 or self._need_rebuild or not math.isfinite(m2)
-                    or self._mt.disp > 0.5 * self._skin_built):
+            if self._need_rebuild or self._expired(m2, disp):
                 try:
                     self._rebuild()
                 except MemoryError as exc:
@@ -991,6 +1131,8 @@ class ParticleSystem:
             return self.set_mesh_motion(wall, velocity=velocity)
         k = self._wall_index(wall)
         self._wgeom[k, 16:19] = np.asarray(velocity, float).reshape(3)
+        if np.any(self._wgeom[k, 16:19] != 0.0) and k < len(self._wfilt):
+            self._wfilt[k] = 0  # moving from now on: every particle visits it (set anew at each rebuild)
         self._moving = np.flatnonzero(np.any(self._wgeom[: self.nw, 16:19] != 0.0, axis=1))
 
     def set_wall_spin(self, wall, spin: float) -> None:
@@ -1142,8 +1284,16 @@ class ParticleSystem:
             st["l_mlist"] = self._mlist[: int(self._mstart[self._n_built])].copy()
         cur = self._cur
         npairs = self._npairs
-        for name in ("pi", "pj", "hist", "pf", "pr", "second_list"):
+        for name in ("pi", "pj", "hist", "second_list"):
             st["l_" + name] = cur[name][:npairs].copy()
+        st["l_slab_start"] = self._slab_start.copy()
+        st["l_wmask"] = self._wmask[: self._n_built].copy()
+        st["l_wfilt"] = self._wfilt.copy()
+        st["l_ubar"] = self._ubar.copy()
+        st["l_ndrift"] = self._ndrift
+        st["l_wbound"] = self._wbound.copy()
+        if self._pending_m2 >= 0.0:
+            st["l_pending_disp"] = np.asarray(self._pending_disp, float)
         nbuilt = self._n_built
         for name in ("first_start", "second_start"):
             st["l_" + name] = cur[name][: nbuilt + 1].copy()
@@ -1172,7 +1322,7 @@ class ParticleSystem:
         npairs = int(state["npairs"])
         nbuilt = int(state["n_built"])
         cur = self._alloc_pairs(max(int(1.3 * npairs) + 64, 64), max(self._cap, nbuilt))
-        for name in ("pi", "pj", "hist", "pf", "pr", "second_list"):
+        for name in ("pi", "pj", "hist", "second_list"):
             cur[name][:npairs] = state["l_" + name]
         for name in ("first_start", "second_start"):
             cur[name][: nbuilt + 1] = state["l_" + name]
@@ -1182,9 +1332,26 @@ class ParticleSystem:
         self._n_built = nbuilt
         self._skin_built = float(state["skin_built"])
         self._need_rebuild = bool(state["need_rebuild"])
+        if "l_slab_start" in state and "l_wmask" in state:
+            self._slab_start = np.ascontiguousarray(state["l_slab_start"], dtype=np.int64)
+            self._slab_ov = np.zeros(max(len(self._slab_start) - 1, 1))
+            self._slab_back = np.zeros((len(self._slab_ov), 2), np.int64)
+            self._wmask = np.zeros(max(self._cap, nbuilt, 1), np.int64)
+            self._wmask[:nbuilt] = state["l_wmask"]
+            self._wfilt = np.ascontiguousarray(state["l_wfilt"], dtype=np.int64)
+            self._ubar = np.asarray(state["l_ubar"], float).reshape(3)
+            self._ndrift = int(state["l_ndrift"])
+            self._wbound = np.asarray(state["l_wbound"], float).reshape(-1, 4)
+        elif n:  # written before the slabs: rebuild the lists (and slabs) at the next step
+            self._need_rebuild = True
         self._forces_stale = bool(state["forces_stale"])
         self._last_ov = float(state["last_ov"])
         self._pending_m2 = float(state["pending_m2"])
+        if self._pending_m2 >= 0.0:
+            if "l_pending_disp" in state:
+                self._pending_disp = tuple(float(x) for x in np.asarray(state["l_pending_disp"]).ravel())
+            else:  # written before: the plain test on the pending drift
+                self._pending_disp = None
         self.wall_back_count = int(state.get("wall_back", 0))  # checkpoints written before the count: 0
         if "w_geom" in state:  # moved or switched walls
             self._wgeom[...] = np.asarray(state["w_geom"]).reshape(self._wgeom.shape)
@@ -1201,6 +1368,8 @@ class ParticleSystem:
             self._mstat = np.zeros((max(len(self._mplist), 1), 2))
         elif self.nm:
             self._need_rebuild = True
+        if not self._need_rebuild:
+            self._wall_plist()
         self.time = float(state["time"])
         self.step_count = int(state["step_count"])
         self._next_id = int(state["next_id"])

@@ -52,8 +52,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cfddem._jit import kernel
+from cfddem._jit import kernel, parallel_kernel, prange
 from cfddem.errors import CaseError
+from cfddem.particles._twin import serial_twin
 from cfddem.particles.contact.base import NPARAM, ContactLaw
 
 WALL_NGEOM = 20
@@ -303,3 +304,59 @@ def wall_contact_py(g, x, r):
     """Test helper: :func:`wall_contact` for one sphere and one geometry row, returning a tuple."""
     G = g.reshape(1, g.size)
     return wall_contact(G, 0, x[0], x[1], x[2], r)
+
+
+#: walls beyond this index are visited for every particle (the candidate masks are int64 bits)
+MAX_FILTERED_WALLS = 62
+
+
+@kernel(inline="always")
+def wall_reach(G, w, x, y, z):
+    """A lower bound of the distance from the point (x, y, z) to wall ``w``: |h| (height
+    above the plane) for planes, rectangles and annuli, |rho - R_c| for cylinders, inf for a
+    wall switched off.  Each wall kind's contact needs it below the sphere's radius (module
+    docstring), and it changes by at most the distance the point moves."""
+    kind = G[w, 0]
+    if kind < 0.0:
+        return np.inf
+    px = x - G[w, 1]
+    py = y - G[w, 2]
+    pz = z - G[w, 3]
+    h = px * G[w, 4] + py * G[w, 5] + pz * G[w, 6]
+    if kind == 2.0:
+        ex = px - h * G[w, 4]
+        ey = py - h * G[w, 5]
+        ez = pz - h * G[w, 6]
+        return abs(math.sqrt(ex * ex + ey * ey + ez * ez) - G[w, 13])
+    return abs(h)
+
+
+@parallel_kernel
+def wall_candidates(n, pos, radius, skin, G, nw, MAXF, wfilt, wmask, won, wfn, whist, wfw, wtw):
+    """At a neighbour rebuild: bit w of ``wmask[i]`` set when particle i may touch wall w before
+    the next rebuild (its reach below r + skin; particles move less than skin/2 between
+    rebuilds), for the walls with ``wfilt[w]`` = 1 (standing walls); a wall with ``wfilt[w]`` = 0
+    (a moving one) has its bit set for every particle.  The force pass visits only the walls of
+    a particle's bits.  A (particle, wall) left out can have no contact before the next rebuild:
+    its contact state is cleared (a stale 'behind the wall' mark would otherwise outlive it).
+    ``MAXF``: :data:`MAX_FILTERED_WALLS` (walls from there on are always visited)."""
+    for i in prange(n):
+        x = pos[i, 0]
+        y = pos[i, 1]
+        z = pos[i, 2]
+        reach = radius[i] + skin
+        mk = 0
+        for w in range(min(nw, MAXF)):
+            if wfilt[w] == 0 or wall_reach(G, w, x, y, z) < reach:
+                mk |= 1 << w
+            elif won[i, w] != 0:
+                won[i, w] = 0
+                wfn[i, w] = 0.0
+                for c in range(3):
+                    whist[i, w, c] = 0.0
+                    wfw[i, w, c] = 0.0
+                    wtw[i, w, c] = 0.0
+        wmask[i] = mk
+
+
+wall_candidates_s = serial_twin(wall_candidates)

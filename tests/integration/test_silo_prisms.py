@@ -1,8 +1,8 @@
 """The hopper silo of the spheropolygon study (cases/silo_prisms, docs/silo-prisms.md) in small
 form: the real 300 mm silo and 20 mm wooden spheres in one layer, but 80 particles and k_n
 reduced to 1e5 N/m (dt 1.5e-5 s = t_c/20) so that each run takes a few seconds.  Particle count
-conserved in a short discharge; a slot of 2 d (40 mm) clogs and is reported as CLOGGED with the arch
-over the outlet; a 150 mm slot empties the hopper and the discharge duration is measured."""
+conserved in a short discharge; a slot of 1.5 d (30 mm) clogs and is reported as CLOGGED with the
+arch over the outlet; a 150 mm slot empties the hopper and the discharge duration is measured."""
 
 import logging
 import math
@@ -62,8 +62,11 @@ def test_short_discharge_conserves_particles(tmp_path, one_numba_thread):
 @pytest.mark.parametrize("angle", [0.0, 60.0])
 def test_narrow_outlet_clogs_with_an_arch(tmp_path, one_numba_thread, angle):
     """Flat: the arch rests on the slot edges; 60 deg hopper: it spans the converging walls, up
-    to y = 2 d (1 + tan 60) = 109 mm (the arch region of the scene)."""
-    b = 2.0 * D  # the paper's narrowest outlet, 40 mm
+    to y = 2 d (1 + tan 60) = 109 mm (the arch region of the scene).  The slot is 1.5 d: at the
+    paper's narrowest, 2 d, a clog is likely but not certain (this 80-particle fill clogged or
+    emptied depending on round-off in the order of summation), while 1.5 d clogged at the
+    first arch in every try."""
+    b = 1.5 * D
     y_arch = 2 * D * (1 + math.tan(math.radians(angle)))
     sim, summary, h5 = run(tmp_path, "clog", b, angle, 3.0)
     assert summary.status == "done"
