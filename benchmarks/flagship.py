@@ -8,7 +8,7 @@ Each side is ``cfddem run CASE`` from the checkpoint (``checkpoint.start_from``)
 ``--duration`` seconds of flow, run from a code tree (``--a-tree``/``--b-tree``, default this
 checkout: ``python -m cfddem.cli`` with the tree as the working directory imports that tree's
 cfddem) with its own overrides (``--a-set``/``--b-set``, repeatable).  One untimed warm-up run per
-side fills its numba cache; then the rounds alternate A, B, A, B, ... and the wall time of each
+side fills its numba cache; then the rounds run A, B then B, A, ... and the wall time of each
 run (``wall_time`` of its results.h5, the time loop without start-up) and its cost split are
 printed with the CPU model and the load before and after, and the ratio A/B per round.
 Never run it beside another timing job or on a loaded machine.
@@ -83,7 +83,8 @@ def main(argv=None):
     rows = []
     for r in range(a.rounds):
         res = {}
-        for name, (tree, sets) in sides.items():
+        for name in (["A", "B"] if r % 2 == 0 else ["B", "A"]):  # the order alternates
+            tree, sets = sides[name]
             l0 = load()
             w, tm = run_side(tree, a.case, sets, a.checkpoint, t_end, out / f"r{r}_{name}", a.threads,
                              f"/tmp/nc_flagship_{name}")

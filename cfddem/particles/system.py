@@ -435,6 +435,24 @@ class ParticleSystem:
                 return True
         return False
 
+    def _filterable(self, w: int) -> bool:
+        """Whether wall ``w`` may be skipped by the particles out of its reach (walls.wall_reach):
+        it stands still, and its reach does not change when a particle wraps round a periodic
+        axis (a plane, rectangle or annulus parallel to that axis, a cylinder along it).  Other
+        walls are visited by every particle."""
+        g = self._wgeom[w]
+        if np.any(g[16:19] != 0.0):
+            return False
+        for a in range(3):
+            if not self._periodic[a]:
+                continue
+            if g[0] == 2.0:  # cylinder: the axis must be the periodic one
+                if abs(abs(g[4 + a]) - 1.0) > 1e-12:
+                    return False
+            elif abs(g[4 + a]) > 1e-12:
+                return False
+        return True
+
     def _wall_lists(self, skin, ser):
         """Each particle's analytic walls within reach until the next rebuild (a bit mask;
         :func:`cfddem.particles.walls.wall_candidates`): standing walls are filtered, moving
@@ -443,8 +461,8 @@ class ParticleSystem:
         if len(self._wmask) < max(n, 1):
             self._wmask = np.zeros(max(self._cap, n, 1), np.int64)
         self._wfilt = np.zeros(max(nw, 1), np.int64)
-        if nw:
-            self._wfilt[:nw] = np.all(self._wgeom[:nw, 16:19] == 0.0, axis=1)
+        for w in range(nw):
+            self._wfilt[w] = self._filterable(w)
         (wl.wall_candidates_s if ser else wl.wall_candidates)(
             n, self._pos, self._radius, skin, self._wgeom, nw, MAX_FILTERED_WALLS, self._wfilt, self._wmask,
             self._won, self._wfn, self._whist, self._wfw, self._wtw)

@@ -211,3 +211,20 @@ def test_no_contact_is_ever_missing_from_the_list(drift):
         # the floor: every particle touching it is among the wall candidates
         on = s.pos[:, 1] < s.radius
         assert np.all(s._wmask[: s.n][on] & 1)
+
+
+def test_walls_across_a_periodic_axis_are_visited_by_every_particle():
+    """A particle that wraps round a periodic axis jumps by a period: a wall across that axis
+    (a floor in a vertically periodic silo) cannot rely on the candidate bits."""
+    c = LinearContact(1000.0, 0.9, 0.5, 0.3)
+    walls = [PlaneWall(contact=c, point=(0, 0.0, 0), normal=(0, 1, 0), name="floor"),
+             PlaneWall(contact=c, point=(0.0, 0, 0), normal=(1, 0, 0), name="side"),
+             CylinderWall(contact=c, point=(0.02, 0.0, 0.02), axis=(0, 1, 0), radius=0.02, half_height=1.0,
+                          name="barrel"),
+             CylinderWall(contact=c, point=(0.02, 0.0, 0.02), axis=(1, 0, 0), radius=0.02, half_height=1.0,
+                          inside=False, name="rod")]
+    s = ParticleSystem(pp=c, walls=walls, dt=1e-5, skin=4e-4, periodic=(None, (-0.05, 0.05), None))
+    s.add_particles([[0.01, 0.01, 0.02], [0.02, 0.03, 0.01]], 0.0, 1e-3, RHO)
+    s.step(1)
+    assert list(s._wfilt[:4]) == [0, 1, 1, 0]
+    assert np.all(s._wmask[: s.n] & 0b1001 == 0b1001)
