@@ -35,7 +35,7 @@ from cfddem.particles._twin import serial_twin
 from cfddem.particles.contact import (P_1, P_2, P_3, P_4, P_MODEL, P_MU, P_MUR, pair_law,
                                       rolling_torque_limited, spring_energy, wall_contact_force)
 from cfddem.particles.neighbours import _min_image, _wrap
-from cfddem.particles.walls import wall_contact, wall_contact_s
+from cfddem.particles.walls import wall_contact, wall_contact_s, wall_shift
 
 
 def rotation_matrix(axis_vec, angle_per_unit: float, h: float) -> np.ndarray:
@@ -66,13 +66,28 @@ def _half_kick(vx, vy, vz, ax, ay, az, h, rotating, r00, r01, r02, r10, r11, r12
     return vx, vy, vz
 
 
+@kernel(inline="always")
+def _past_slack(slack, i, wgeom, dx, dy, dz):
+    """1 if the displacement d may have brought particle i within reach of a standing wall it
+    is not a candidate of (its margins ``slack[i]``, walls.wall_candidates), else 0."""
+    s2 = slack[i, 1]
+    if dx * dx + dy * dy + dz * dz >= s2 * s2:
+        return 1
+    w = int(slack[i, 2])
+    if w >= 0 and wall_shift(wgeom, w, dx, dy, dz) >= slack[i, 0]:
+        return 1
+    return 0  # (also for a non-finite d: the force pass reports that particle)
+
+
 @parallel_kernel
 def kick_drift(n, pos, vel, omg, force, torque, mass, inertia, ext_f, ext_t, has_ext, dt, rotating,
-               Rv, Rw, periodic_len, plo, ref, held, dux, duy, duz):
+               Rv, Rw, periodic_len, plo, ref, held, dux, duy, duz, B, slack, wgeom):
     """Opening half kick and drift; wraps periodic axes; returns the displacements since the
-    last rebuild d = r - r_ref as (max |d|^2, max |d - u|^2, max |d_x|, max |d_y|, max |d_z|)
-    (u = (dux, duy, duz) the bed's estimated common displacement: the rebuild test,
-    :meth:`cfddem.particles.ParticleSystem._expired`).
+    last rebuild d = r - r_ref as (max |d|^2, max |d - u|^2, the number of particles that may
+    have come within reach of a standing wall they are not a candidate of), with
+    u = (dux, duy, duz) + B r_ref the bed's estimated displacement field (3 x 3 ``B``) and
+    ``slack`` their margins (:func:`cfddem.particles.walls.wall_candidates`): the rebuild test,
+    :meth:`cfddem.particles.ParticleSystem._expired`.
     Held particles (``held[i] != 0``: a feed moving at a set velocity) keep their velocity and
     spin: no kick, only the drift."""
     h = 0.5 * dt
@@ -94,11 +109,18 @@ def kick_drift(n, pos, vel, omg, force, torque, mass, inertia, ext_f, ext_t, has
     rw20 = Rw[2, 0]
     rw21 = Rw[2, 1]
     rw22 = Rw[2, 2]
+    b00 = B[0, 0]
+    b01 = B[0, 1]
+    b02 = B[0, 2]
+    b10 = B[1, 0]
+    b11 = B[1, 1]
+    b12 = B[1, 2]
+    b20 = B[2, 0]
+    b21 = B[2, 1]
+    b22 = B[2, 2]
     m2 = 0.0
     r2 = 0.0
-    mx = 0.0
-    my = 0.0
-    mz = 0.0
+    ws = 0
     for i in prange(n):
         im = 1.0 / mass[i]
         ii = 1.0 / inertia[i]
@@ -149,14 +171,12 @@ def kick_drift(n, pos, vel, omg, force, torque, mass, inertia, ext_f, ext_t, has
         dy = _min_image(y - ref[i, 1], periodic_len[1])
         dz = _min_image(z - ref[i, 2], periodic_len[2])
         m2 = max(m2, dx * dx + dy * dy + dz * dz)
-        qx = dx - dux
-        qy = dy - duy
-        qz = dz - duz
+        qx = dx - dux - (b00 * ref[i, 0] + b01 * ref[i, 1] + b02 * ref[i, 2])
+        qy = dy - duy - (b10 * ref[i, 0] + b11 * ref[i, 1] + b12 * ref[i, 2])
+        qz = dz - duz - (b20 * ref[i, 0] + b21 * ref[i, 1] + b22 * ref[i, 2])
         r2 = max(r2, qx * qx + qy * qy + qz * qz)
-        mx = max(mx, abs(dx))
-        my = max(my, abs(dy))
-        mz = max(mz, abs(dz))
-    return m2, r2, mx, my, mz
+        ws += _past_slack(slack, i, wgeom, dx, dy, dz)
+    return m2, r2, ws
 
 
 @parallel_kernel
@@ -498,7 +518,7 @@ def wall_forces(nl, plist, pos, vel, omg, force, torque, radius, mass, inertia, 
 
 @parallel_kernel
 def body_kick(n, pos, vel, omg, force, torque, mass, inertia, ext_f, ext_t, has_ext, gx, gy, gz, omx, omy, omz, cax, cay, caz,
-              dt, kick, rotating, Rv, Rw, drift_next, periodic_len, plo, ref, held, dux, duy, duz):
+              dt, kick, rotating, Rv, Rw, drift_next, periodic_len, plo, ref, held, dux, duy, duz, B, slack, wgeom):
     """Add gravity and the centrifugal force -m Omega x (Omega x (r - r_axis)) to the contact
     forces in ``force`` (:func:`pair_forces`, :func:`wall_forces`), and (if ``kick``) do the
     closing half kick.
@@ -530,11 +550,18 @@ def body_kick(n, pos, vel, omg, force, torque, mass, inertia, ext_f, ext_t, has_
     rw21 = Rw[2, 1]
     rw22 = Rw[2, 2]
     bad = 0
+    b00 = B[0, 0]
+    b01 = B[0, 1]
+    b02 = B[0, 2]
+    b10 = B[1, 0]
+    b11 = B[1, 1]
+    b12 = B[1, 2]
+    b20 = B[2, 0]
+    b21 = B[2, 1]
+    b22 = B[2, 2]
     m2 = 0.0
     r2 = 0.0
-    mx = 0.0
-    my = 0.0
-    mz = 0.0
+    ws = 0
     for i in prange(n):
         efx = 0.0
         efy = 0.0
@@ -628,14 +655,12 @@ def body_kick(n, pos, vel, omg, force, torque, mass, inertia, ext_f, ext_t, has_
             ey = _min_image(pos[i, 1] - ref[i, 1], periodic_len[1])
             ez = _min_image(pos[i, 2] - ref[i, 2], periodic_len[2])
             m2 = max(m2, ex * ex + ey * ey + ez * ez)
-            qx = ex - dux
-            qy = ey - duy
-            qz = ez - duz
+            qx = ex - dux - (b00 * ref[i, 0] + b01 * ref[i, 1] + b02 * ref[i, 2])
+            qy = ey - duy - (b10 * ref[i, 0] + b11 * ref[i, 1] + b12 * ref[i, 2])
+            qz = ez - duz - (b20 * ref[i, 0] + b21 * ref[i, 1] + b22 * ref[i, 2])
             r2 = max(r2, qx * qx + qy * qy + qz * qz)
-            mx = max(mx, abs(ex))
-            my = max(my, abs(ey))
-            mz = max(mz, abs(ez))
-    return bad, m2, r2, mx, my, mz
+            ws += _past_slack(slack, i, wgeom, ex, ey, ez)
+    return bad, m2, r2, ws
 
 
 @kernel

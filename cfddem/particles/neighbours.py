@@ -219,7 +219,7 @@ def pair_count(pos, radius, n, skin, lo, size, nc, periodic_len, cell_start, cou
             if pl0 > 0.0:
                 if nc0 < 3 and ox != 0 and (ax < 0 or ax >= nc0):
                     continue
-                ax = ax % nc0
+                ax = ax + nc0 if ax < 0 else (ax - nc0 if ax >= nc0 else ax)  # (no integer division)
             elif ax < 0 or ax >= nc0:
                 continue
             for oy in range(-1, 2):
@@ -227,7 +227,7 @@ def pair_count(pos, radius, n, skin, lo, size, nc, periodic_len, cell_start, cou
                 if pl1 > 0.0:
                     if nc1 < 3 and oy != 0 and (ay < 0 or ay >= nc1):
                         continue
-                    ay = ay % nc1
+                    ay = ay + nc1 if ay < 0 else (ay - nc1 if ay >= nc1 else ay)  # (no integer division)
                 elif ay < 0 or ay >= nc1:
                     continue
                 for oz in range(-1, 2):
@@ -235,7 +235,7 @@ def pair_count(pos, radius, n, skin, lo, size, nc, periodic_len, cell_start, cou
                     if pl2 > 0.0:
                         if nc2 < 3 and oz != 0 and (az < 0 or az >= nc2):
                             continue
-                        az = az % nc2
+                        az = az + nc2 if az < 0 else (az - nc2 if az >= nc2 else az)  # (no integer division)
                     elif az < 0 or az >= nc2:
                         continue
                     c = ax * st0 + ay * st1 + az * st2
@@ -292,7 +292,7 @@ def pair_fill(pos, radius, n, skin, lo, size, nc, periodic_len, cell_start, firs
             if pl0 > 0.0:
                 if nc0 < 3 and ox != 0 and (ax < 0 or ax >= nc0):
                     continue
-                ax = ax % nc0
+                ax = ax + nc0 if ax < 0 else (ax - nc0 if ax >= nc0 else ax)  # (no integer division)
             elif ax < 0 or ax >= nc0:
                 continue
             for oy in range(-1, 2):
@@ -300,7 +300,7 @@ def pair_fill(pos, radius, n, skin, lo, size, nc, periodic_len, cell_start, firs
                 if pl1 > 0.0:
                     if nc1 < 3 and oy != 0 and (ay < 0 or ay >= nc1):
                         continue
-                    ay = ay % nc1
+                    ay = ay + nc1 if ay < 0 else (ay - nc1 if ay >= nc1 else ay)  # (no integer division)
                 elif ay < 0 or ay >= nc1:
                     continue
                 for oz in range(-1, 2):
@@ -308,7 +308,7 @@ def pair_fill(pos, radius, n, skin, lo, size, nc, periodic_len, cell_start, firs
                     if pl2 > 0.0:
                         if nc2 < 3 and oz != 0 and (az < 0 or az >= nc2):
                             continue
-                        az = az % nc2
+                        az = az + nc2 if az < 0 else (az - nc2 if az >= nc2 else az)  # (no integer division)
                     elif az < 0 or az >= nc2:
                         continue
                     c = ax * st0 + ay * st1 + az * st2
@@ -324,6 +324,93 @@ def pair_fill(pos, radius, n, skin, lo, size, nc, periodic_len, cell_start, firs
                             pj[k] = j
                             k += 1
     return need
+
+
+@parallel_kernel
+def pair_search(pos, radius, n, skin, lo, size, nc, periodic_len, cell_start, slots, tmp, counts):
+    """One search pass (the work of :func:`pair_count` and :func:`pair_fill` at once): the
+    partners j > i of particle i within R_i + R_j + skin go to ``tmp[i * slots ...]`` in scan
+    order, at most ``slots`` of them; ``counts[i]`` gets their number, even beyond ``slots``.
+    Returns the largest count: above ``slots`` the caller gives more slots and searches again.
+    :func:`pair_compact` then writes the list."""
+    pl0 = periodic_len[0]
+    pl1 = periodic_len[1]
+    pl2 = periodic_len[2]
+    nc0 = nc[0]
+    nc1 = nc[1]
+    nc2 = nc[2]
+    st0 = nc[3]
+    st1 = nc[4]
+    st2 = nc[5]
+    lo0 = lo[0]
+    lo1 = lo[1]
+    lo2 = lo[2]
+    sz0 = size[0]
+    sz1 = size[1]
+    sz2 = size[2]
+    most = 0
+    for i in prange(n):
+        xi = pos[i, 0]
+        yi = pos[i, 1]
+        zi = pos[i, 2]
+        ri = radius[i]
+        cx = min(max(int((xi - lo0) / sz0), 0), nc0 - 1)
+        cy = min(max(int((yi - lo1) / sz1), 0), nc1 - 1)
+        cz = min(max(int((zi - lo2) / sz2), 0), nc2 - 1)
+        me = cx * st0 + cy * st1 + cz * st2
+        base = i * slots
+        cnt = 0
+        for ox in range(-1, 2):
+            ax = cx + ox
+            if pl0 > 0.0:
+                if nc0 < 3 and ox != 0 and (ax < 0 or ax >= nc0):
+                    continue
+                ax = ax + nc0 if ax < 0 else (ax - nc0 if ax >= nc0 else ax)  # (no integer division)
+            elif ax < 0 or ax >= nc0:
+                continue
+            for oy in range(-1, 2):
+                ay = cy + oy
+                if pl1 > 0.0:
+                    if nc1 < 3 and oy != 0 and (ay < 0 or ay >= nc1):
+                        continue
+                    ay = ay + nc1 if ay < 0 else (ay - nc1 if ay >= nc1 else ay)  # (no integer division)
+                elif ay < 0 or ay >= nc1:
+                    continue
+                for oz in range(-1, 2):
+                    az = cz + oz
+                    if pl2 > 0.0:
+                        if nc2 < 3 and oz != 0 and (az < 0 or az >= nc2):
+                            continue
+                        az = az + nc2 if az < 0 else (az - nc2 if az >= nc2 else az)  # (no integer division)
+                    elif az < 0 or az >= nc2:
+                        continue
+                    c = ax * st0 + ay * st1 + az * st2
+                    if c < me:
+                        continue
+                    for j in range(max(cell_start[c], i + 1), cell_start[c + 1]):
+                        dx = _min_image(pos[j, 0] - xi, pl0)
+                        dy = _min_image(pos[j, 1] - yi, pl1)
+                        dz = _min_image(pos[j, 2] - zi, pl2)
+                        cut = ri + radius[j] + skin
+                        if dx * dx + dy * dy + dz * dz < cut * cut:
+                            if cnt < slots:
+                                tmp[base + cnt] = j
+                            cnt += 1
+        counts[i] = cnt
+        most = max(most, cnt)
+    return most
+
+
+@parallel_kernel
+def pair_compact(n, slots, tmp, first_start, pi, pj):
+    """The list from :func:`pair_search`'s slots: the pairs of particle i at
+    ``first_start[i] .. first_start[i + 1] - 1`` (the prefix sums of its counts)."""
+    for i in prange(n):
+        k = first_start[i]
+        base = i * slots
+        for q in range(first_start[i + 1] - k):
+            pi[k + q] = i
+            pj[k + q] = tmp[base + q]
 
 
 @kernel
@@ -413,6 +500,8 @@ def brute_force_pairs(pos, radius, cutoff_extra, periodic_len):
 bounding_box_s = serial_twin(bounding_box)
 pair_count_s = serial_twin(pair_count)
 pair_fill_s = serial_twin(pair_fill)
+pair_search_s = serial_twin(pair_search)
+pair_compact_s = serial_twin(pair_compact)
 remap_history_s = serial_twin(remap_history)
 
 

@@ -53,6 +53,9 @@ _WALL_ARRAYS = ("whist", "won", "wfn", "wfw", "wtw")
 # contact point, tangential spring, overlap, |F_n|, force and torque on the mesh
 _MESH_ARRAYS = ("ms_mesh", "ms_n", "ms_q", "ms_h", "ms_ov", "ms_fn", "ms_fw", "ms_tw")
 _ROW_ARRAYS = _PARTICLE_ARRAYS + _WALL_ARRAYS + _MESH_ARRAYS
+#: the one-pass pair search keeps this many slots per particle at most (a denser neighbourhood,
+#: e.g. a big particle among small ones, takes the count-and-fill passes instead)
+MAX_PAIR_SLOTS = 48
 
 
 class ParticleSystem:
@@ -106,9 +109,15 @@ class ParticleSystem:
         self._wmask = np.zeros(1, np.int64)
         self._wfilt = np.zeros(1, np.int64)
         self._wall_candidates = 0
-        self._wbound = np.zeros((0, 4))
+        # each particle's margins before a standing wall it is not a candidate of (walls.wall_candidates)
+        self._wslack = np.array([[np.inf, np.inf, -1.0]])
+        self._pair_slots = 0  # slots per particle of the one-pass pair search (0: count and fill)
+        self._slot_buf = np.empty(0, np.int64)
         self._ndrift = 0  # drifts since the last rebuild
-        self._ubar = np.zeros(3)  # mean velocity at the last rebuild
+        self._ubar = np.zeros(3)  # the velocity field fitted at the last rebuild: u0 + G r
+        self._ugrad = np.zeros((3, 3))
+        self._ugrad_norm = 0.0
+        self._rmax_built = 0.0
         self._pending_disp = None
         self._wplist = np.zeros(0, np.int64)  # particles near a wall (it.wall_forces)
         self._friction_built = None  # (mu, mu_r) of the contact tables as built (set_friction)
@@ -301,11 +310,16 @@ class ParticleSystem:
         if cnt == 0:
             return 0, 0.0
         removed_mass = float(self.mass[mask].sum())
-        keep = np.nonzero(~mask)[0]
+        keep = np.nonzero(~mask)[0].astype(np.int64)
         k = len(keep)
+        width = 3 * max(self.nw, self._K, 1)
+        if getattr(self, "_scratch", None) is None or self._scratch.size < k * width:
+            self._scratch = np.empty(self._cap * width)
+        ser = self._serial(k)
         for name in _ROW_ARRAYS:
-            a = getattr(self, "_" + name)
-            a[:k] = a[keep]
+            if name in _MESH_ARRAYS and not self.nm:
+                continue  # no mesh walls: every row holds the same (free slots)
+            nb.permute_rows(getattr(self, "_" + name), keep, k, self._scratch, ser)
         self.n = k
         if self._has_clumps():
             self.clumps.rebuild_csr(self._body[:k], self._ids[:k])
@@ -352,6 +366,8 @@ class ParticleSystem:
         if getattr(self, "_scratch", None) is None or self._scratch.size < n * width:
             self._scratch = np.empty(self._cap * width)
         for name in _ROW_ARRAYS:
+            if name in _MESH_ARRAYS and not self.nm:
+                continue  # no mesh walls: every row holds the same (free slots)
             nb.permute_rows(getattr(self, "_" + name), order, n, self._scratch, ser)
         old_index = self._prev[:n].copy()
         # swap buffers: the current list becomes the old one
@@ -362,18 +378,42 @@ class ParticleSystem:
             cur.update(first_start=np.zeros(self._cap + 1, np.int64),
                        second_start=np.zeros(self._cap + 1, np.int64),
                        counts=np.zeros(self._cap, np.int64))
-        (nb.pair_count_s if ser else nb.pair_count)(self._pos, self._radius, n, skin, lo, size, nc, self._plen, cell_start,
-                      cur["counts"])
-        need = nb.prefix_sum(cur["counts"], n, cur["first_start"])
-        while True:
-            got = (nb.pair_fill_s if ser else nb.pair_fill)(self._pos, self._radius, n, skin, lo, size, nc, self._plen,
-                               cell_start, cur["first_start"], cur["pi"], cur["pj"], cur["pcap"])
-            if got <= cur["pcap"]:
-                break
-            # overflow: grow (with spare room) and fill again
-            fs, ss, cn = cur["first_start"], cur["second_start"], cur["counts"]
-            cur.update(self._alloc_pairs(int(1.3 * got) + 64, 0))
-            cur.update(first_start=fs, second_start=ss, counts=cn)
+        slots = self._pair_slots
+        if 0 < slots <= MAX_PAIR_SLOTS:
+            # one search pass into per-particle slots (the slots from the last build's largest
+            # count: a particle with more makes it search again with more slots)
+            while True:
+                if len(self._slot_buf) < n * slots:
+                    self._slot_buf = np.empty(int(1.2 * n * slots) + 64, np.int64)
+                most = (nb.pair_search_s if ser else nb.pair_search)(
+                    self._pos, self._radius, n, skin, lo, size, nc, self._plen, cell_start, slots,
+                    self._slot_buf, cur["counts"])
+                if most <= slots:
+                    break
+                slots = int(most) + 4
+            need = nb.prefix_sum(cur["counts"], n, cur["first_start"])
+            if need > cur["pcap"]:
+                fs, ss, cn = cur["first_start"], cur["second_start"], cur["counts"]
+                cur.update(self._alloc_pairs(int(1.3 * need) + 64, 0))
+                cur.update(first_start=fs, second_start=ss, counts=cn)
+            (nb.pair_compact_s if ser else nb.pair_compact)(n, slots, self._slot_buf, cur["first_start"],
+                                                            cur["pi"], cur["pj"])
+        else:
+            (nb.pair_count_s if ser else nb.pair_count)(self._pos, self._radius, n, skin, lo, size, nc, self._plen,
+                                                        cell_start, cur["counts"])
+            need = nb.prefix_sum(cur["counts"], n, cur["first_start"])
+            while True:
+                got = (nb.pair_fill_s if ser else nb.pair_fill)(self._pos, self._radius, n, skin, lo, size, nc,
+                                                                self._plen, cell_start, cur["first_start"], cur["pi"],
+                                                                cur["pj"], cur["pcap"])
+                if got <= cur["pcap"]:
+                    break
+                # overflow: grow (with spare room) and fill again
+                fs, ss, cn = cur["first_start"], cur["second_start"], cur["counts"]
+                cur.update(self._alloc_pairs(int(1.3 * got) + 64, 0))
+                cur.update(first_start=fs, second_start=ss, counts=cn)
+        # slots for the next build: this build's largest count and some room
+        self._pair_slots = int(cur["counts"][:n].max()) + 4 if n else 0
         npairs = int(need)
         if self._has_clumps():  # pairs of two members of one clump never touch
             npairs = int(cl.drop_intra_pairs(n, cur["first_start"], cur["pi"], cur["pj"], self._body))
@@ -391,49 +431,77 @@ class ParticleSystem:
         self._prev[:n] = np.arange(n)
         self._ref[:n] = self._pos[:n]
         self._ndrift = 0
-        self._ubar = np.zeros(3) if self._has_clumps() else self._vel[:n].mean(axis=0)
+        self._fit_velocity_field()
+        self._rmax_built = rmax
         if self._has_clumps():
             self.clumps.rebuild_csr(self._body[:n], self._ids[:n])
         self._need_rebuild = False
         self.n_rebuilds += 1
 
-    def _bed_drift(self, ahead: int) -> np.ndarray:
-        """The bed's estimated common displacement since the last rebuild after ``ahead`` more
-        drifts: the mean velocity at the rebuild times the time drifted (any vector is a valid
-        reference for :meth:`_expired`; this one makes a bed moving as a whole keep its lists).
-        Zero for clumps (whose members' displacements take the plain test)."""
-        return self._ubar * (self.dt * (self._ndrift + ahead))
+    def _bed_drift(self, ahead: int):
+        """The bed's estimated displacement field since the last rebuild after ``ahead`` more
+        drifts, u(r_ref) = u0 + B r_ref: the velocity field fitted at the rebuild (an affine
+        least-squares fit, constant along periodic axes) times the time drifted.  Any field is
+        a valid reference for :meth:`_expired`; a good one lets a flowing bed keep its lists
+        while its particles keep their neighbours.  Returns (u0 (3), B (3, 3))."""
+        tau = self.dt * (self._ndrift + ahead)
+        return self._ubar * tau, self._ugrad * tau
+
+    def _fit_velocity_field(self) -> None:
+        """The affine velocity field v ~ u0 + G r of the particles at a rebuild (least squares;
+        G's columns along periodic axes zero, so the field is periodic too; zero for clumps)."""
+        n = self.n
+        self._ubar = np.zeros(3)
+        self._ugrad = np.zeros((3, 3))
+        self._ugrad_norm = 0.0
+        if self._has_clumps() or n < 16:
+            return
+        free = [a for a in range(3) if not self._periodic[a]]
+        x = self._pos[:n, free]
+        c = x.mean(axis=0)
+        A = np.empty((n, len(free) + 1))
+        A[:, 0] = 1.0
+        A[:, 1:] = x - c
+        coef, *_ = np.linalg.lstsq(A, self._vel[:n], rcond=None)
+        G = np.zeros((3, 3))
+        G[:, free] = coef[1:].T
+        u0 = coef[0] - G[:, free] @ c
+        if not (np.all(np.isfinite(G)) and np.all(np.isfinite(u0))):
+            return
+        self._ugrad = G
+        self._ubar = u0
+        self._ugrad_norm = float(np.linalg.norm(G))  # Frobenius: bounds the 2-norm
 
     def _expired(self, m2: float, disp) -> bool:
         """Whether the neighbour, wall and mesh lists may miss a contact after this drift.
 
-        ``disp`` = (max |d|^2, max |d - u|^2, max |d_x|, max |d_y|, max |d_z|) over the
-        particles' displacements d since the last rebuild (u = :meth:`_bed_drift`), or None (the
-        plain test: max |d| beyond half the skin).
+        ``disp`` = (max |d|^2, max |d - u|^2, the count of particles past their wall margins)
+        over the particles' displacements d since the last rebuild (u = :meth:`_bed_drift`), or
+        None (the plain test: max |d| beyond half the skin).
 
         Pairs: a pair left out of the list was farther apart than R_i + R_j + skin and can touch
         only once |d_i - d_j| > skin; |d_i - d_j| <= |d_i - u| + |d_j - u| <= 2 max |d - u| for
         any u.  So the pairs hold while max |d - u| <= skin/2 (with u = 0 the classic test), and
         a bed moving as a whole does not call for rebuilds, only its particles' relative motion.
         Standing walls: a particle is a candidate of wall w while its reach
-        (:func:`cfddem.particles.walls.wall_reach`) is below r + skin; the reach of a plane,
-        rectangle or annulus of normal n changes by at most |d.n| <= sum_a max|d_a| |n_a|, of a
-        cylinder by at most |d|: a bed sliding along its walls keeps its wall lists.  Meshes:
-        the largest |d| plus the meshes' own motion stays below the skin."""
+        (:func:`cfddem.particles.walls.wall_reach`, a lower bound of its distance) is below
+        r + skin; any other particle may move by its margin, its smallest reach minus r among the
+        walls it is not a candidate of (at least the skin; far from the walls much more), across
+        that wall (|d.n| for a plane: a bed sliding along its wall keeps its wall lists) and by
+        the second smallest in all, before it could touch one.  Meshes: the largest |d| plus the meshes' own motion stays below the
+        skin."""
         skin = self._skin_built
         if disp is None or not math.isfinite(m2):
             return not m2 <= (0.5 * skin) ** 2 or self._mt.disp > 0.5 * skin
-        _, r2, mx, my, mz = disp
-        if not r2 <= (0.5 * skin) ** 2:
+        _, r2, ws = disp
+        # |u_i - u_j| <= |B| |r_i - r_j|_ref <= |B| (2 R_max + |d_i - d_j|) for a pair that comes
+        # to touch: it stays out of reach while 2 max|d - u| + 2 |B| R_max <= (1 - |B|) skin
+        nb_ = self._ugrad_norm * self.dt * self._ndrift
+        if not 2.0 * math.sqrt(r2) + 2.0 * nb_ * self._rmax_built <= (1.0 - nb_) * skin:
             return True
         if self.nm and math.sqrt(m2) + self._mt.disp > skin:
             return True
-        if len(self._wbound):
-            b = self._wbound[:, 0] * mx + self._wbound[:, 1] * my + self._wbound[:, 2] * mz
-            b = np.where(self._wbound[:, 3] > 0.0, math.sqrt(m2), b)
-            if b.max() > skin:
-                return True
-        return False
+        return ws > 0.0
 
     def _filterable(self, w: int) -> bool:
         """Whether wall ``w`` may be skipped by the particles out of its reach (walls.wall_reach):
@@ -460,22 +528,15 @@ class ParticleSystem:
         n, nw = self.n, self.nw
         if len(self._wmask) < max(n, 1):
             self._wmask = np.zeros(max(self._cap, n, 1), np.int64)
+            self._wslack = np.zeros((max(self._cap, n, 1), 3))
         self._wfilt = np.zeros(max(nw, 1), np.int64)
         for w in range(nw):
             self._wfilt[w] = self._filterable(w)
         (wl.wall_candidates_s if ser else wl.wall_candidates)(
             n, self._pos, self._radius, skin, self._wgeom, nw, MAX_FILTERED_WALLS, self._wfilt, self._wmask,
-            self._won, self._wfn, self._whist, self._wfw, self._wtw)
+            self._wslack, self._won, self._wfn, self._whist, self._wfw, self._wtw)
         # (particle, wall) candidates: the bits set
         self._wall_candidates = int(np.unpackbits(self._wmask[:n].view(np.uint8)).sum())
-        # what the rebuild test (_expired) needs of the standing walls: |n| (planes, rectangles,
-        # annuli) or a flag for cylinders, for each filtered wall that is on
-        nwf = min(nw, MAX_FILTERED_WALLS)
-        on = [w for w in range(nwf) if self._wfilt[w] and self._wgeom[w, 0] >= 0.0]
-        self._wbound = np.zeros((len(on), 4))
-        for k, w in enumerate(on):
-            self._wbound[k, :3] = np.abs(self._wgeom[w, 4:7])
-            self._wbound[k, 3] = 1.0 if self._wgeom[w, 0] == 2.0 else 0.0
         self._wall_plist()
 
     def _wall_plist(self):
@@ -567,12 +628,12 @@ class ParticleSystem:
         g, om, ap = self.gravity, self.frame_omega, self.axis_point
         drift_next = (drift_next and max(ov_pp, ov_m, ov_w) <= self.max_overlap_ratio_limit
                       and not self._mesh_over)
-        u = self._bed_drift(1 if drift_next else 0)
+        u, B = self._bed_drift(1 if drift_next else 0)
         bad, *disp = (it.body_kick_s if ser else it.body_kick)(
             self.n, self._pos, self._vel, self._omega, self._force, self._torque, self._mass, self._inertia,
             self._ext_force, self._ext_torque, self._has_ext, g[0], g[1], g[2], om[0], om[1], om[2],
             ap[0], ap[1], ap[2], self.dt, kick, self._rotating, self._Rv, self._Rw, drift_next, self._plen,
-            self._plo, self._ref, self._held, u[0], u[1], u[2])
+            self._plo, self._ref, self._held, u[0], u[1], u[2], B, self._wslack, self._wgeom)
         self._last_ov = max(ov_pp, ov_w, ov_m)
         self._pending_m2 = disp[0] if drift_next else -1.0
         if drift_next:
@@ -667,11 +728,11 @@ class ParticleSystem:
                 self._pending_m2 = -1.0
             else:
                 kd = it.kick_drift_s if self._serial(self.n) else it.kick_drift
-                u = self._bed_drift(1)
+                u, B = self._bed_drift(1)
                 disp = kd(self.n, self._pos, self._vel, self._omega, self._force, self._torque,
                           self._mass, self._inertia, self._ext_force, self._ext_torque, self._has_ext, dt,
                           self._rotating, self._Rv, self._Rw, self._plen, self._plo, self._ref, self._held,
-                          u[0], u[1], u[2])
+                          u[0], u[1], u[2], B, self._wslack, self._wgeom)
                 self._ndrift += 1
             m2 = disp[0]
             if clumped:  # bodies: opening kick, rotation, drift; members follow
@@ -1308,8 +1369,10 @@ class ParticleSystem:
         st["l_wmask"] = self._wmask[: self._n_built].copy()
         st["l_wfilt"] = self._wfilt.copy()
         st["l_ubar"] = self._ubar.copy()
+        st["l_ugrad"] = self._ugrad.copy()
+        st["l_rmax_built"] = self._rmax_built
         st["l_ndrift"] = self._ndrift
-        st["l_wbound"] = self._wbound.copy()
+        st["l_wslack"] = self._wslack[: self._n_built].copy()
         if self._pending_m2 >= 0.0:
             st["l_pending_disp"] = np.asarray(self._pending_disp, float)
         nbuilt = self._n_built
@@ -1358,8 +1421,12 @@ class ParticleSystem:
             self._wmask[:nbuilt] = state["l_wmask"]
             self._wfilt = np.ascontiguousarray(state["l_wfilt"], dtype=np.int64)
             self._ubar = np.asarray(state["l_ubar"], float).reshape(3)
+            self._ugrad = np.asarray(state["l_ugrad"], float).reshape(3, 3)
+            self._ugrad_norm = float(np.linalg.norm(self._ugrad))
+            self._rmax_built = float(state["l_rmax_built"])
             self._ndrift = int(state["l_ndrift"])
-            self._wbound = np.asarray(state["l_wbound"], float).reshape(-1, 4)
+            self._wslack = np.zeros((max(self._cap, nbuilt, 1), 3))
+            self._wslack[:nbuilt] = np.asarray(state["l_wslack"]).reshape(-1, 3)
         elif n:  # written before the slabs: rebuild the lists (and slabs) at the next step
             self._need_rebuild = True
         self._forces_stale = bool(state["forces_stale"])

@@ -331,14 +331,32 @@ def wall_reach(G, w, x, y, z):
     return abs(h)
 
 
+@kernel(inline="always")
+def wall_shift(G, w, dx, dy, dz):
+    """How much the displacement (dx, dy, dz) can change the reach of wall ``w``
+    (:func:`wall_reach`): |d.n| for a plane, rectangle or annulus, the part of d across the
+    axis for a cylinder."""
+    h = dx * G[w, 4] + dy * G[w, 5] + dz * G[w, 6]
+    if G[w, 0] == 2.0:
+        ex = dx - h * G[w, 4]
+        ey = dy - h * G[w, 5]
+        ez = dz - h * G[w, 6]
+        return math.sqrt(ex * ex + ey * ey + ez * ez)
+    return abs(h)
+
+
 @parallel_kernel
-def wall_candidates(n, pos, radius, skin, G, nw, MAXF, wfilt, wmask, won, wfn, whist, wfw, wtw):
+def wall_candidates(n, pos, radius, skin, G, nw, MAXF, wfilt, wmask, slack, won, wfn, whist, wfw, wtw):
     """At a neighbour rebuild: bit w of ``wmask[i]`` set when particle i may touch wall w before
     the next rebuild (its reach below r + skin; particles move less than skin/2 between
     rebuilds), for the walls with ``wfilt[w]`` = 1 (standing walls); a wall with ``wfilt[w]`` = 0
     (a moving one) has its bit set for every particle.  The force pass visits only the walls of
     a particle's bits.  A (particle, wall) left out can have no contact before the next rebuild:
     its contact state is cleared (a stale 'behind the wall' mark would otherwise outlive it).
+    ``slack[i]`` = (s1, s2, w1): the particle's smallest reach minus r among the standing walls
+    it is not a candidate of (at wall w1; -1 and inf if none) and the second smallest, s2: it
+    cannot touch any of them while its displacement across wall w1 (:func:`wall_shift`) stays
+    below s1 and its whole displacement below s2.
     ``MAXF``: :data:`MAX_FILTERED_WALLS` (walls from there on are always visited)."""
     for i in prange(n):
         x = pos[i, 0]
@@ -346,10 +364,25 @@ def wall_candidates(n, pos, radius, skin, G, nw, MAXF, wfilt, wmask, won, wfn, w
         z = pos[i, 2]
         reach = radius[i] + skin
         mk = 0
+        s1 = np.inf
+        s2 = np.inf
+        w1 = -1.0
         for w in range(min(nw, MAXF)):
-            if wfilt[w] == 0 or wall_reach(G, w, x, y, z) < reach:
+            if wfilt[w] == 0:
                 mk |= 1 << w
-            elif won[i, w] != 0:
+                continue
+            rw = wall_reach(G, w, x, y, z)
+            if rw < reach:
+                mk |= 1 << w
+                continue
+            sw = rw - radius[i]
+            if sw < s1:
+                s2 = s1
+                s1 = sw
+                w1 = w
+            elif sw < s2:
+                s2 = sw
+            if won[i, w] != 0:
                 won[i, w] = 0
                 wfn[i, w] = 0.0
                 for c in range(3):
@@ -357,6 +390,9 @@ def wall_candidates(n, pos, radius, skin, G, nw, MAXF, wfilt, wmask, won, wfn, w
                     wfw[i, w, c] = 0.0
                     wtw[i, w, c] = 0.0
         wmask[i] = mk
+        slack[i, 0] = s1
+        slack[i, 1] = s2
+        slack[i, 2] = w1
 
 
 wall_candidates_s = serial_twin(wall_candidates)
