@@ -85,15 +85,18 @@ def find_crossing(system, mark: dict, stats: dict | None = None) -> Crossing | N
     pid = mark["ids"]
     if not len(ids) or not len(pid):
         return None
-    order = np.argsort(pid)
-    sp = pid[order]
-    k = np.minimum(np.searchsorted(sp, ids), len(pid) - 1)
-    known = sp[k] == ids
+    # each id's row at the mark: a dense table over the ids (they are below the next id to
+    # give), O(n) where a sort was O(n log n)
+    top = int(max(pid.max(), ids.max())) + 1
+    table = np.full(top, -1, np.int64)
+    table[pid] = np.arange(len(pid))
+    k = table[ids]
+    known = k >= 0
     if not known.any():
         return None
     at = np.flatnonzero(known)
     cur = system.pos[known]
-    old = mark["pos"][order[k[known]]]  # one gather (no full reordered copy)
+    old = mark["pos"][k[known]]  # one gather (no full reordered copy)
     r = rad[known]
 
     def found(i, wall, tri, depth):

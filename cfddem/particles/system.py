@@ -310,16 +310,17 @@ class ParticleSystem:
         if cnt == 0:
             return 0, 0.0
         removed_mass = float(self.mass[mask].sum())
-        keep = np.nonzero(~mask)[0].astype(np.int64)
-        k = len(keep)
-        width = 3 * max(self.nw, self._K, 1)
-        if getattr(self, "_scratch", None) is None or self._scratch.size < k * width:
-            self._scratch = np.empty(self._cap * width)
-        ser = self._serial(k)
-        for name in _ROW_ARRAYS:
-            if name in _MESH_ARRAYS and not self.nm:
-                continue  # no mesh walls: every row holds the same (free slots)
-            nb.permute_rows(getattr(self, "_" + name), keep, k, self._scratch, ser)
+        # the last particles kept move into the holes (the rebuild that follows sorts them anyway):
+        # work in proportion to the particles removed, not to all of them
+        k = self.n - cnt
+        holes = np.flatnonzero(mask[:k])
+        movers = k + np.flatnonzero(~mask[k:])
+        if len(holes):
+            for name in _ROW_ARRAYS:
+                if name in _MESH_ARRAYS and not self.nm:
+                    continue  # no mesh walls: every row holds the same (free slots)
+                a = getattr(self, "_" + name)
+                a[holes] = a[movers]
         self.n = k
         if self._has_clumps():
             self.clumps.rebuild_csr(self._body[:k], self._ids[:k])
