@@ -12,11 +12,13 @@ Build (all deterministic, identical for any thread count):
 2. counting sort of particles by linear cell index (:func:`cell_sort`, stable) -- the caller
    reorders the particle arrays in this order, which gives cache locality.  After the sort,
    cell c holds particles ``cell_start[c] .. cell_start[c+1]-1``.
-3. a count pass and a fill pass (:func:`pair_count`, :func:`pair_fill`, ``prange`` over
-   particles): particle i scans the (up to) 27 neighbouring cells with index >= its own cell
-   and keeps j > i.  The pairs of particle i are stored contiguously from ``first_start[i]``,
-   so the list is ordered by i, then by scan order.  The fill kernel takes the capacity and
-   returns the needed size: nothing is written out of bounds; Python grows and refills.
+3. one search pass (:func:`pair_search`, ``prange`` over particles): particle i scans the
+   (up to) 27 neighbouring cells with index >= its own cell and keeps j > i, into slots of a
+   size taken from the last build (more slots and a second pass when a particle has more
+   partners; a counting and a filling pass where the slots would be too many).  The pairs of
+   particle i are stored contiguously from ``first_start[i]`` (:func:`pair_compact`), so the
+   list is ordered by i, then by scan order.  Nothing is written out of bounds; Python grows
+   the arrays.
 4. :func:`second_csr`: for each particle the pairs in which it is the second member (ascending
    pair index).  The force gather uses both ranges in a fixed order (exact Newton's third law).
 5. :func:`remap_history`: each new pair looks its old tangential history up by the particles'
@@ -185,154 +187,17 @@ def _wrap(x, lo, plen):
 
 
 @parallel_kernel
-def pair_count(pos, radius, n, skin, lo, size, nc, periodic_len, cell_start, counts):
-    """counts[i] = number of partners j > i within R_i + R_j + skin (sorted particles)."""
-    # scalars hoisted out of the loops (the compiler cannot prove the output arrays do not
-    # alias these inputs, so it would reload them in the innermost loop)
-    pl0 = periodic_len[0]
-    pl1 = periodic_len[1]
-    pl2 = periodic_len[2]
-    nc0 = nc[0]
-    nc1 = nc[1]
-    nc2 = nc[2]
-    st0 = nc[3]
-    st1 = nc[4]
-    st2 = nc[5]
-    lo0 = lo[0]
-    lo1 = lo[1]
-    lo2 = lo[2]
-    sz0 = size[0]
-    sz1 = size[1]
-    sz2 = size[2]
-    for i in prange(n):
-        xi = pos[i, 0]
-        yi = pos[i, 1]
-        zi = pos[i, 2]
-        ri = radius[i]
-        cx = min(max(int((xi - lo0) / sz0), 0), nc0 - 1)
-        cy = min(max(int((yi - lo1) / sz1), 0), nc1 - 1)
-        cz = min(max(int((zi - lo2) / sz2), 0), nc2 - 1)
-        me = cx * st0 + cy * st1 + cz * st2
-        cnt = 0
-        for ox in range(-1, 2):
-            ax = cx + ox
-            if pl0 > 0.0:
-                if nc0 < 3 and ox != 0 and (ax < 0 or ax >= nc0):
-                    continue
-                ax = ax + nc0 if ax < 0 else (ax - nc0 if ax >= nc0 else ax)  # (no integer division)
-            elif ax < 0 or ax >= nc0:
-                continue
-            for oy in range(-1, 2):
-                ay = cy + oy
-                if pl1 > 0.0:
-                    if nc1 < 3 and oy != 0 and (ay < 0 or ay >= nc1):
-                        continue
-                    ay = ay + nc1 if ay < 0 else (ay - nc1 if ay >= nc1 else ay)  # (no integer division)
-                elif ay < 0 or ay >= nc1:
-                    continue
-                for oz in range(-1, 2):
-                    az = cz + oz
-                    if pl2 > 0.0:
-                        if nc2 < 3 and oz != 0 and (az < 0 or az >= nc2):
-                            continue
-                        az = az + nc2 if az < 0 else (az - nc2 if az >= nc2 else az)  # (no integer division)
-                    elif az < 0 or az >= nc2:
-                        continue
-                    c = ax * st0 + ay * st1 + az * st2
-                    if c < me:
-                        continue
-                    for j in range(max(cell_start[c], i + 1), cell_start[c + 1]):
-                        dx = _min_image(pos[j, 0] - xi, pl0)
-                        dy = _min_image(pos[j, 1] - yi, pl1)
-                        dz = _min_image(pos[j, 2] - zi, pl2)
-                        cut = ri + radius[j] + skin
-                        if dx * dx + dy * dy + dz * dz < cut * cut:
-                            cnt += 1
-        counts[i] = cnt
+def pair_search(pos, radius, n, skin, lo, size, nc, periodic_len, cell_start, starts, slots, tmp, counts):
+    """The partners j > i of particle i within R_i + R_j + skin, in scan order, into ``tmp``:
 
+    * ``slots`` > 0: at most ``slots`` of them from ``tmp[i * slots]`` (one pass; then
+      :func:`pair_compact` writes the list);
+    * ``slots`` = 0: from ``tmp[starts[i]]``, at most ``starts[i + 1] - starts[i]`` of them (a
+      counting pass with all ``starts`` zero, then a filling pass with their prefix sums: for
+      neighbourhoods too dense for slots).
 
-@parallel_kernel
-def pair_fill(pos, radius, n, skin, lo, size, nc, periodic_len, cell_start, first_start,
-              pi, pj, capacity):
-    """Write the pairs of particle i at first_start[i]...; returns the needed size and writes
-    nothing when it exceeds ``capacity`` (the caller grows the arrays and calls again)."""
-    need = first_start[n]
-    if need > capacity:
-        return need
-    # scalars hoisted out of the loops (the compiler cannot prove the output arrays do not
-    # alias these inputs, so it would reload them in the innermost loop)
-    pl0 = periodic_len[0]
-    pl1 = periodic_len[1]
-    pl2 = periodic_len[2]
-    nc0 = nc[0]
-    nc1 = nc[1]
-    nc2 = nc[2]
-    st0 = nc[3]
-    st1 = nc[4]
-    st2 = nc[5]
-    lo0 = lo[0]
-    lo1 = lo[1]
-    lo2 = lo[2]
-    sz0 = size[0]
-    sz1 = size[1]
-    sz2 = size[2]
-    for i in prange(n):
-        xi = pos[i, 0]
-        yi = pos[i, 1]
-        zi = pos[i, 2]
-        ri = radius[i]
-        cx = min(max(int((xi - lo0) / sz0), 0), nc0 - 1)
-        cy = min(max(int((yi - lo1) / sz1), 0), nc1 - 1)
-        cz = min(max(int((zi - lo2) / sz2), 0), nc2 - 1)
-        me = cx * st0 + cy * st1 + cz * st2
-        k = first_start[i]
-        kend = first_start[i + 1]
-        for ox in range(-1, 2):
-            ax = cx + ox
-            if pl0 > 0.0:
-                if nc0 < 3 and ox != 0 and (ax < 0 or ax >= nc0):
-                    continue
-                ax = ax + nc0 if ax < 0 else (ax - nc0 if ax >= nc0 else ax)  # (no integer division)
-            elif ax < 0 or ax >= nc0:
-                continue
-            for oy in range(-1, 2):
-                ay = cy + oy
-                if pl1 > 0.0:
-                    if nc1 < 3 and oy != 0 and (ay < 0 or ay >= nc1):
-                        continue
-                    ay = ay + nc1 if ay < 0 else (ay - nc1 if ay >= nc1 else ay)  # (no integer division)
-                elif ay < 0 or ay >= nc1:
-                    continue
-                for oz in range(-1, 2):
-                    az = cz + oz
-                    if pl2 > 0.0:
-                        if nc2 < 3 and oz != 0 and (az < 0 or az >= nc2):
-                            continue
-                        az = az + nc2 if az < 0 else (az - nc2 if az >= nc2 else az)  # (no integer division)
-                    elif az < 0 or az >= nc2:
-                        continue
-                    c = ax * st0 + ay * st1 + az * st2
-                    if c < me:
-                        continue
-                    for j in range(max(cell_start[c], i + 1), cell_start[c + 1]):
-                        dx = _min_image(pos[j, 0] - xi, pl0)
-                        dy = _min_image(pos[j, 1] - yi, pl1)
-                        dz = _min_image(pos[j, 2] - zi, pl2)
-                        cut = ri + radius[j] + skin
-                        if dx * dx + dy * dy + dz * dz < cut * cut and k < kend:
-                            pi[k] = i
-                            pj[k] = j
-                            k += 1
-    return need
-
-
-@parallel_kernel
-def pair_search(pos, radius, n, skin, lo, size, nc, periodic_len, cell_start, slots, tmp, counts):
-    """One search pass (the work of :func:`pair_count` and :func:`pair_fill` at once): the
-    partners j > i of particle i within R_i + R_j + skin go to ``tmp[i * slots ...]`` in scan
-    order, at most ``slots`` of them; ``counts[i]`` gets their number, even beyond ``slots``.
-    Returns the largest count: above ``slots`` the caller gives more slots and searches again.
-    :func:`pair_compact` then writes the list."""
+    ``counts[i]`` gets their number, also beyond the room.  Returns the largest count: above
+    ``slots`` the caller gives more slots and searches again."""
     pl0 = periodic_len[0]
     pl1 = periodic_len[1]
     pl2 = periodic_len[2]
@@ -358,7 +223,12 @@ def pair_search(pos, radius, n, skin, lo, size, nc, periodic_len, cell_start, sl
         cy = min(max(int((yi - lo1) / sz1), 0), nc1 - 1)
         cz = min(max(int((zi - lo2) / sz2), 0), nc2 - 1)
         me = cx * st0 + cy * st1 + cz * st2
-        base = i * slots
+        if slots > 0:
+            base = i * slots
+            room = slots
+        else:
+            base = starts[i]
+            room = starts[i + 1] - base
         cnt = 0
         for ox in range(-1, 2):
             ax = cx + ox
@@ -393,7 +263,7 @@ def pair_search(pos, radius, n, skin, lo, size, nc, periodic_len, cell_start, sl
                         dz = _min_image(pos[j, 2] - zi, pl2)
                         cut = ri + radius[j] + skin
                         if dx * dx + dy * dy + dz * dz < cut * cut:
-                            if cnt < slots:
+                            if cnt < room:
                                 tmp[base + cnt] = j
                             cnt += 1
         counts[i] = cnt
@@ -403,14 +273,16 @@ def pair_search(pos, radius, n, skin, lo, size, nc, periodic_len, cell_start, sl
 
 @parallel_kernel
 def pair_compact(n, slots, tmp, first_start, pi, pj):
-    """The list from :func:`pair_search`'s slots: the pairs of particle i at
-    ``first_start[i] .. first_start[i + 1] - 1`` (the prefix sums of its counts)."""
+    """The list from :func:`pair_search`'s results: the pairs of particle i at
+    ``first_start[i] .. first_start[i + 1] - 1`` (the prefix sums of its counts); their
+    partners from its slots (``slots`` > 0) or already in ``pj`` (``slots`` = 0)."""
     for i in prange(n):
         k = first_start[i]
         base = i * slots
         for q in range(first_start[i + 1] - k):
             pi[k + q] = i
-            pj[k + q] = tmp[base + q]
+            if slots > 0:
+                pj[k + q] = tmp[base + q]
 
 
 @kernel
@@ -498,8 +370,6 @@ def brute_force_pairs(pos, radius, cutoff_extra, periodic_len):
 
 
 bounding_box_s = serial_twin(bounding_box)
-pair_count_s = serial_twin(pair_count)
-pair_fill_s = serial_twin(pair_fill)
 pair_search_s = serial_twin(pair_search)
 pair_compact_s = serial_twin(pair_compact)
 remap_history_s = serial_twin(remap_history)

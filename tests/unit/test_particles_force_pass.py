@@ -228,3 +228,18 @@ def test_walls_across_a_periodic_axis_are_visited_by_every_particle():
     s.step(1)
     assert list(s._wfilt[:4]) == [0, 1, 1, 0]
     assert np.all(s._wmask[: s.n] & 0b1001 == 0b1001)
+
+
+@pytest.mark.parametrize("slots", [0, 2, 64])
+def test_every_search_path_gives_the_brute_force_pairs(slots):
+    """First build (count and fill), too few slots (a second pass with more), enough slots."""
+    s = _system(600, (True, False, True), 9)
+    s._rebuild()
+    s._pair_slots = slots
+    s._rebuild()
+    ref = nb.brute_force_pairs(s.pos, s.radius, s.skin, s._plen)
+    ids = s.ids
+    want = {(min(ids[i], ids[j]), max(ids[i], ids[j])) for i, j in ref}
+    got = {tuple(p) for p in s.pairs().tolist()}
+    assert len(got) == s.n_pairs > 300 and got == want
+    assert s._pair_slots == int(s._cur["counts"][: s.n].max()) + 4
