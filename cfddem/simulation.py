@@ -532,7 +532,7 @@ class Simulation:
     # ------------------------------------------------------------------------------- helpers
     def _report_wall_back(self) -> None:
         """Log the particles that came to a one-sided wall from its back since the last call
-        (the engine gives them no contact there: :func:`cfddem.particles.integrate.gather_walls_kick`)."""
+        (the engine gives them no contact there: :func:`cfddem.particles.integrate.wall_forces`)."""
         ev = self.system.wall_back_events
         if not ev:
             return

@@ -18,10 +18,11 @@ half kick K_h exactly as a rotation, Boris style:
 of dv/dt = F/m - 2 Omega x v, so Strang composition keeps the scheme second order and
 time-reversible).  Likewise w is rotated by angle -|Omega| h for T = -I Omega x w.
 
-Kernels per step: :func:`kick_drift` (prange over particles), the neighbour rebuild when
-needed, :func:`pair_forces` (prange over pairs: each pair once, writes only its own slots),
-:func:`gather_walls_kick` (prange over particles: sums the pair forces through the CSR of
-incident pairs in a fixed order, adds walls and body forces, does the closing half kick).
+Kernels per step: the opening kick and drift (:func:`kick_drift`, or fused into the previous
+step's :func:`body_kick`), the neighbour rebuild when needed, :func:`pair_forces` (one pass over
+the half list, slabs of cells in three colours: each particle's sums in an order that does not
+depend on the threads), :func:`wall_forces` (the particles near a wall only) and
+:func:`body_kick` (gravity, centrifugal force, the closing half kick).
 """
 
 from __future__ import annotations
@@ -354,11 +355,23 @@ def _rolling_step(tmax, inert, dt, pwx, pwy, pwz):
 def wall_forces(nl, plist, pos, vel, omg, force, torque, radius, mass, inertia, ext_t, has_ext,
                 wgeom, wref, wpar, nw, wmask, maxf, whist, won, wfw, wtw, wfn,
                 has_mesh, mstart, K, ms_mesh, ms_fn, ms_tw, mpar, mf, mt, dt, dt_hist):
-    """Add the walls' contacts (:func:`_particle_walls`) to ``force`` and ``torque`` of the ``nl``
-    particles ``plist`` (those within reach of a wall since the last rebuild, or with candidate
-    mesh triangles), after :func:`pair_forces`.  A pass of its own over those particles only:
-    the same code inside the loop over all particles (the pair pass, or the kick) cost that
-    loop more than this pass costs.
+    """Add the walls' contacts to ``force`` and ``torque`` of the ``nl`` particles ``plist``
+    (those within reach of a wall since the last rebuild, or with candidate mesh triangles),
+    after :func:`pair_forces`.  Each visits the analytic walls of its bits in ``wmask`` (every
+    wall from ``maxf`` on) and adds the mesh walls' sums ``mf[i]``, ``mt[i]``
+    (:func:`cfddem.particles.mesh.mesh_forces`) where it has candidate triangles.  A pass of its
+    own over those particles only: the same code inside the loop over all particles (the pair
+    pass, or the kick) cost that loop more than this pass costs.
+
+    Back of a wall: a wall contact that would *start* (the particle was not touching that wall
+    at the previous evaluation, ``won[i, w] == 0``) with an overlap above the radius, i.e. with
+    the centre behind the face of a plane, rectangle or annulus, is not a contact: the sphere
+    reached the one-sided wall from its back (from outside the region the walls enclose, e.g.
+    over the rim of a ring).  Without this rule the contact switched on at an overlap up to 2 r
+    and threw the particle out in one step.  The particle is marked behind that wall
+    (``won[i, w] = 2``; 1 = in contact, 0 = neither) and gets no contact from it until its
+    overlap ends.  Each such start is counted; the largest ``i * nw + w + 1`` among them names
+    one (particle row i, wall w) for the diagnosis.
 
     Wall rolling friction is applied last, when all other torques on the particle are known:
     with w' = w + dt (T + T_ext)/I the spin predicted without it, the rolling torque of a wall

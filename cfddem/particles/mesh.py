@@ -818,7 +818,7 @@ def mesh_forces(nlist, plist, pos, vel, omg, radius, mass, cstart, clist, T, tme
     have no mesh contact and empty slots).  Per particle: mf[i], mt[i] = the summed contact force
     and torque (about the centre) from the meshes; per slot s: the mesh, normal, point, overlap, tangential spring, |F_n|, and the force
     and torque (about the mesh's reference point) on the mesh.  Rolling friction is added by the
-    gather (:func:`cfddem.particles.integrate.gather_walls_kick`), as for the analytic walls.
+    wall pass (:func:`cfddem.particles.integrate.wall_forces`), as for the analytic walls.
     Returns (particles with more than K contacts, max overlap ratio); mstat (nlist, 2) is scratch
     for these two per particle (reduced after the parallel loop: numba's reduction analysis
     fails on the inlined contact search).

@@ -104,7 +104,6 @@ class ParticleSystem:
         # slabs of the force pass (neighbours.slab_starts), set at each neighbour rebuild
         self._slab_start = np.zeros(2, np.int64)
         self._slab_ov = np.zeros(1)
-        self._slab_back = np.zeros((1, 2), np.int64)
         self._no_pf = np.zeros((1, 6))
         self._no_pr = np.zeros((1, 3))
         # walls within each particle's reach (walls.wall_candidates), set at each rebuild
@@ -166,7 +165,7 @@ class ParticleSystem:
         self._pending_m2 = -1.0
         self.n_rebuilds = 0
         # particles that came to an analytic wall from its back (no contact, see
-        # integrate.gather_walls_kick): the total, and the events not yet reported
+        # integrate.wall_forces): the total, and the events not yet reported
         # (step, particle id, wall name, count in that evaluation) for the caller to log
         self.wall_back_count = 0
         self.wall_back_events: list[tuple[int, int, str, int]] = []
@@ -362,7 +361,6 @@ class ParticleSystem:
         nb.cell_sort(self._pos, n, lo, size, nc, cell_of, order, cell_start)
         self._slab_start = nb.slab_starts(nc, cell_start, self._periodic)
         self._slab_ov = np.zeros(max(len(self._slab_start) - 1, 1))
-        self._slab_back = np.zeros((len(self._slab_ov), 2), np.int64)
         # reorder particle arrays by cell (prev keeps each particle's index at the last build)
         ser = self._serial(n)
         width = 3 * max(self.nw, self._K, 1)
@@ -1418,7 +1416,6 @@ class ParticleSystem:
         if "l_slab_start" in state and "l_wmask" in state:
             self._slab_start = np.ascontiguousarray(state["l_slab_start"], dtype=np.int64)
             self._slab_ov = np.zeros(max(len(self._slab_start) - 1, 1))
-            self._slab_back = np.zeros((len(self._slab_ov), 2), np.int64)
             self._wmask = np.zeros(max(self._cap, nbuilt, 1), np.int64)
             self._wmask[:nbuilt] = state["l_wmask"]
             self._wfilt = np.ascontiguousarray(state["l_wfilt"], dtype=np.int64)

@@ -25,7 +25,7 @@ contact that began on the front and was pushed in: a contact that would *begin* 
 behind the face (overlap > R, a sphere arriving from the back of a rectangle or annulus, e.g.
 over a ring's rim) is no contact; the engine marks the particle behind that wall until the
 overlap ends and counts the event
-(:func:`cfddem.particles.integrate.gather_walls_kick`; the run log names the particle and wall).  For a rectangle the nearest point q
+(:func:`cfddem.particles.integrate.wall_forces`; the run log names the particle and wall).  For a rectangle the nearest point q
 of the rectangle to the centre is used: inside the face (|u1| <= h1, |u2| <= h2) this is the
 plane contact; outside, q lies on an edge or corner, the normal is (x - q)/|x - q| and the
 overlap R - |x - q|, for centres on the +n side only (h >= 0).
