@@ -109,7 +109,6 @@ class ParticleSystem:
         # walls within each particle's reach (walls.wall_candidates), set at each rebuild
         self._wmask = np.zeros(1, np.int64)
         self._wfilt = np.zeros(1, np.int64)
-        self._wall_candidates = 0
         # each particle's margins before a standing wall it is not a candidate of (walls.wall_candidates)
         self._wslack = np.array([[np.inf, np.inf, -1.0]])
         self._pair_slots = 0  # slots per particle of the one-pass pair search (0: count and fill)
@@ -535,9 +534,13 @@ class ParticleSystem:
         (wl.wall_candidates_s if ser else wl.wall_candidates)(
             n, self._pos, self._radius, skin, self._wgeom, nw, MAX_FILTERED_WALLS, self._wfilt, self._wmask,
             self._wslack, self._won, self._wfn, self._whist, self._wfw, self._wtw)
-        # (particle, wall) candidates: the bits set
-        self._wall_candidates = int(np.unpackbits(self._wmask[:n].view(np.uint8)).sum())
         self._wall_plist()
+
+    @property
+    def _wall_candidates(self) -> int:
+        """The (particle, wall) candidates of the last rebuild: the bits set in the masks
+        (a statistic, counted when asked)."""
+        return int(np.unpackbits(self._wmask[: self._n_built].view(np.uint8)).sum())
 
     def _wall_plist(self):
         """The particles the wall pass visits: walls within reach, or candidate mesh triangles."""

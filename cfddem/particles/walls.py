@@ -311,27 +311,6 @@ MAX_FILTERED_WALLS = 62
 
 
 @kernel(inline="always")
-def wall_reach(G, w, x, y, z):
-    """A lower bound of the distance from the point (x, y, z) to wall ``w``: |h| (height
-    above the plane) for planes, rectangles and annuli, |rho - R_c| for cylinders, inf for a
-    wall switched off.  Each wall kind's contact needs it below the sphere's radius (module
-    docstring), and it changes by at most the distance the point moves."""
-    kind = G[w, 0]
-    if kind < 0.0:
-        return np.inf
-    px = x - G[w, 1]
-    py = y - G[w, 2]
-    pz = z - G[w, 3]
-    h = px * G[w, 4] + py * G[w, 5] + pz * G[w, 6]
-    if kind == 2.0:
-        ex = px - h * G[w, 4]
-        ey = py - h * G[w, 5]
-        ez = pz - h * G[w, 6]
-        return abs(math.sqrt(ex * ex + ey * ey + ez * ez) - G[w, 13])
-    return abs(h)
-
-
-@kernel(inline="always")
 def wall_shift(G, w, dx, dy, dz):
     """How much the displacement (dx, dy, dz) can change the reach of wall ``w``
     (:func:`wall_reach`): |d.n| for a plane, rectangle or annulus, the part of d across the
@@ -343,6 +322,22 @@ def wall_shift(G, w, dx, dy, dz):
         ez = dz - h * G[w, 6]
         return math.sqrt(ex * ex + ey * ey + ez * ez)
     return abs(h)
+
+
+@kernel(inline="always")
+def wall_reach(G, w, x, y, z):
+    """A lower bound of the distance from the point (x, y, z) to wall ``w``: |h| (height
+    above the plane) for planes, rectangles and annuli, |rho - R_c| for cylinders, inf for a
+    wall switched off.  Each wall kind's contact needs it below the sphere's radius (module
+    docstring), and it changes by at most the distance the point moves.  (|h| and rho are
+    :func:`wall_shift` of the point's offset from the wall's centre point.)"""
+    kind = G[w, 0]
+    if kind < 0.0:
+        return np.inf
+    s = wall_shift(G, w, x - G[w, 1], y - G[w, 2], z - G[w, 3])
+    if kind == 2.0:
+        return abs(s - G[w, 13])
+    return s
 
 
 @parallel_kernel
