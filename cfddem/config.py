@@ -128,6 +128,12 @@ SCHEMA: dict[str, dict] = {
                              "clump of 3 mm spheres 0.75 mm apart: [[-0.125, 0, 0, 0.5], [0.125, 0, 0, 0.5]] with "
                              "diameter = 0.003; the spheres must overlap or touch (one rigid body); mass and inertia "
                              "of their union", length=4),
+        "rotation": Key("str", "free", "-", "'free', or 'locked': the case's particles (spheres and clumps) do not "
+                        "rotate (their spin stays zero; contact torques are ignored), the usual calibration device "
+                        "that stands in for the interlocking of non-spherical grains; bodies a scene adds (the shear "
+                        "cell's lid) stay free.  Scenes that pour a lattice and let it settle (shear_cell, silo) "
+                        "pour with free rotation and lock at the end of the fill (locked spheres dropped on a "
+                        "lattice stay stacked in columns: docs/particles.md)", choices=("free", "locked")),
     },
     "contact": _contact_section(),
     "geometry": {

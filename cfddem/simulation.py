@@ -157,6 +157,7 @@ class Simulation:
             max_overlap_ratio=case.particles.max_overlap_ratio,
             capacity=max(1024, int(1.2 * expected_particles(case))),
         )
+        self.system.rotation_locked = case.particles.rotation == "locked" and not cls.locks_rotation_after_fill
         init = initial_particles(case)
         if len(init["pos"]):
             if self.system.overlaps(init["pos"], init["radius"]).any():

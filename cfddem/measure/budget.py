@@ -94,7 +94,7 @@ def budget_step(n, ids, pos, vel, mass, force, ext, held, wfw, nw, has_mesh, mst
     each analytic wall, ``ms_fw`` on each mesh slot)."""
     for i in range(n):
         b = -1
-        if held[i] == 0:
+        if held[i] != 1:
             b = _bin_of(pos[i, a], edges)
         pid = ids[i]
         pb = prev[pid]

@@ -196,9 +196,10 @@ def _write_members(b, start, members, com, vel, L, quat, inert, pos, pvel, pomg,
 
 @parallel_kernel
 def clump_open(nb, start, members, com, vel, L, quat, mass, inert, bforce, btorque, bext_f,
-               bext_t, vfix, vset, dt, rotating, Rv, Rw, pos, pvel, pomg, boff, plen, plo, ref):
+               bext_t, vfix, vset, wfix, dt, rotating, Rv, Rw, pos, pvel, pomg, boff, plen, plo, ref):
     """Opening half kick, NO_SQUISH rotation and drift of every body; writes the members'
-    positions, velocities and spins.  Returns max |r_m - r_ref|^2 over the members."""
+    positions, velocities and spins.  Bodies with ``wfix[b, 0] != 0`` do not rotate (their
+    angular momentum stays 0).  Returns max |r_m - r_ref|^2 over the members."""
     h = 0.5 * dt
     m2 = 0.0
     for b in prange(nb):
@@ -207,6 +208,10 @@ def clump_open(nb, start, members, com, vel, L, quat, mass, inert, bforce, btorq
                    (bforce[b, 2] + bext_f[b, 2]) * im, h, rotating, Rv)
         lx, ly, lz = _half(L[b, 0], L[b, 1], L[b, 2], btorque[b, 0] + bext_t[b, 0],
                            btorque[b, 1] + bext_t[b, 1], btorque[b, 2] + bext_t[b, 2], h, rotating, Rw)
+        if wfix[b, 0] != 0.0:  # rotation locked: no spin, the rotor below is the identity
+            lx = 0.0
+            ly = 0.0
+            lz = 0.0
         # free rotor in the body frame: pi = R^T L
         r00, r01, r02, r10, r11, r12, r20, r21, r22 = _qmat(quat[b, 0], quat[b, 1], quat[b, 2], quat[b, 3])
         p0 = r00 * lx + r10 * ly + r20 * lz
@@ -246,7 +251,7 @@ def clump_open(nb, start, members, com, vel, L, quat, mass, inert, bforce, btorq
 
 @parallel_kernel
 def clump_close(nb, start, members, com, vel, L, quat, mass, inert, bforce, btorque, bext_f,
-                bext_t, vfix, vset, cforce, dt, kick, rotating, Rv, Rw, pos, pvel, pomg, boff,
+                bext_t, vfix, vset, wfix, cforce, dt, kick, rotating, Rv, Rw, pos, pvel, pomg, boff,
                 pforce, ptorque, pmass, pext_f, pext_t, has_ext, gx, gy, gz, omx, omy, omz, cax,
                 cay, caz, plen, plo):
     """Sum the members' forces and torques onto each body (fixed member order) and, if ``kick``,
@@ -338,6 +343,10 @@ def clump_close(nb, start, members, com, vel, L, quat, mass, inert, bforce, btor
             _kick_body(vel, vfix, vset, b, ftx * im, fty * im, ftz * im, h, rotating, Rv)
             lx, ly, lz = _half(L[b, 0], L[b, 1], L[b, 2], tx + bext_t[b, 0], ty + bext_t[b, 1],
                                tz + bext_t[b, 2], h, rotating, Rw)
+            if wfix[b, 0] != 0.0:
+                lx = 0.0
+                ly = 0.0
+                lz = 0.0
             L[b, 0] = lx
             L[b, 1] = ly
             L[b, 2] = lz
@@ -615,7 +624,7 @@ def particle_shape(p) -> ClumpShape | None:
 # ----------------------------------------------------------------------------------- body store
 
 _BODY_ARRAYS = dict(com=3, vel=3, L=3, quat=4, inert=3, force=3, torque=3, ext_force=3,
-                    ext_torque=3, vfix=3, vset=3, cforce=3)
+                    ext_torque=3, vfix=3, vset=3, cforce=3, wfix=1)
 
 
 class ClumpSet:
@@ -703,6 +712,9 @@ class ClumpSet:
         self._alloc(max(nb, 8))
         self.nb = nb
         for k in list(_BODY_ARRAYS) + ["mass", "bid"]:
+            if k == "wfix" and "c_wfix" not in st:  # written before rotation locking: all free
+                getattr(self, "_" + k)[:nb] = 0.0
+                continue
             a = np.asarray(st["c_" + k])
             getattr(self, "_" + k)[:nb] = a.reshape(getattr(self, "_" + k)[:nb].shape)
         self.next_bid = int(st["c_next_bid"])

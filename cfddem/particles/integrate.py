@@ -89,8 +89,9 @@ def kick_drift(n, pos, vel, omg, force, torque, mass, inertia, ext_f, ext_t, has
     u = (dux, duy, duz) + B r_ref the bed's estimated displacement field (3 x 3 ``B``) and
     ``slack`` their margins (:func:`cfddem.particles.walls.wall_candidates`): the rebuild test,
     :meth:`cfddem.particles.ParticleSystem._expired`.
-    Held particles (``held[i] != 0``: a feed moving at a set velocity) keep their velocity and
-    spin: no kick, only the drift."""
+    Held particles (``held[i] == 1``: a feed moving at a set velocity) keep their velocity and
+    spin: no kick, only the drift; ``held[i] == 2``: the spin is locked (particles.rotation =
+    'locked'), the velocity is kicked."""
     h = 0.5 * dt
     rv00 = Rv[0, 0]
     rv01 = Rv[0, 1]
@@ -144,11 +145,13 @@ def kick_drift(n, pos, vel, omg, force, torque, mass, inertia, ext_f, ext_t, has
         wx = omg[i, 0]
         wy = omg[i, 1]
         wz = omg[i, 2]
-        if held[i] == 0:
+        hv = held[i]
+        if hv != 1:
             vx, vy, vz = _half_kick(vx, vy, vz,
                                     (force[i, 0] + efx) * im, (force[i, 1] + efy) * im,
                                     (force[i, 2] + efz) * im, h, rotating,
                                     rv00, rv01, rv02, rv10, rv11, rv12, rv20, rv21, rv22)
+        if hv == 0:
             wx, wy, wz = _half_kick(wx, wy, wz,
                                     (torque[i, 0] + etx) * ii, (torque[i, 1] + ety) * ii,
                                     (torque[i, 2] + etz) * ii, h, rotating,
@@ -619,14 +622,15 @@ def body_kick(n, pos, vel, omg, force, torque, mass, inertia, ext_f, ext_t, has_
         force[i, 0] = fx
         force[i, 1] = fy
         force[i, 2] = fz
-        free = held[i] == 0
-        if kick and free:
+        hv = held[i]
+        if kick and hv != 1:
             vx, vy, vz = _half_kick(vx, vy, vz, (fx + efx) * im, (fy + efy) * im,
                                     (fz + efz) * im, h, rotating,
                                     rv00, rv01, rv02, rv10, rv11, rv12, rv20, rv21, rv22)
-            wx, wy, wz = _half_kick(wx, wy, wz, (tx + etx) * ii, (ty + ety) * ii,
-                                    (tz + etz) * ii, h, rotating,
-                                    rw00, rw01, rw02, rw10, rw11, rw12, rw20, rw21, rw22)
+            if hv == 0:
+                wx, wy, wz = _half_kick(wx, wy, wz, (tx + etx) * ii, (ty + ety) * ii,
+                                        (tz + etz) * ii, h, rotating,
+                                        rw00, rw01, rw02, rw10, rw11, rw12, rw20, rw21, rw22)
             vel[i, 0] = vx
             vel[i, 1] = vy
             vel[i, 2] = vz
@@ -640,10 +644,11 @@ def body_kick(n, pos, vel, omg, force, torque, mass, inertia, ext_f, ext_t, has_
         if drift_next:
             ux, uy, uz = vx, vy, vz
             sx2, sy2, sz2 = wx, wy, wz
-            if free:
+            if hv != 1:
                 ux, uy, uz = _half_kick(vx, vy, vz, (fx + efx) * im, (fy + efy) * im,
                                         (fz + efz) * im, h, rotating,
                                         rv00, rv01, rv02, rv10, rv11, rv12, rv20, rv21, rv22)
+            if hv == 0:
                 sx2, sy2, sz2 = _half_kick(wx, wy, wz, (tx + etx) * ii, (ty + ety) * ii,
                                            (tz + etz) * ii, h, rotating,
                                            rw00, rw01, rw02, rw10, rw11, rw12, rw20, rw21, rw22)
@@ -809,7 +814,7 @@ def velocity_zones(n, pos, vel, body, held, zones, nz):
     component ``axis`` set to ``value`` (the first zone that holds it).  Returns how many were set."""
     cnt = 0
     for i in range(n):
-        if body[i] >= 0 or held[i] != 0:
+        if body[i] >= 0 or held[i] == 1:
             continue
         for z in range(nz):
             if _in_zone(zones, z, pos[i, 0], pos[i, 1], pos[i, 2]):

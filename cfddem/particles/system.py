@@ -175,6 +175,8 @@ class ParticleSystem:
         self._moving = np.flatnonzero(np.any(self._wgeom[: self.nw, 16:19] != 0.0, axis=1))
         # rigid clumps (cfddem.particles.clumps): None until add_clumps is called
         self.clumps = None
+        # particles.rotation = 'locked': particles and clumps added from now on do not spin
+        self.rotation_locked = False
         # velocity zones (add_velocity_zone): rows (lo xyz, hi xyz, axis, value); bodies set last step
         self._zones = np.zeros((0, 8))
         self.zone_count = 0
@@ -243,12 +245,17 @@ class ParticleSystem:
         return self._npairs
 
     # ------------------------------------------------------------------ particles in/out
-    def add_particles(self, pos, vel, radius, density, omega=None, held: bool = False, label=0) -> np.ndarray:
+    def add_particles(self, pos, vel, radius, density, omega=None, held: bool = False, label=0,
+                      rotation_locked: bool | None = None) -> np.ndarray:
         """Append spheres; returns their new ids.  radius, density, label (tracer label, an
         integer): scalars or (m,) arrays.
         m = rho 4/3 pi R^3, I = 2/5 m R^2.  Positions are wrapped into periodic boxes.
         ``held``: the new spheres move at their given velocity and spin, unaffected by forces,
-        until :meth:`release` (a feed that pushes like a piston; they still push others)."""
+        until :meth:`release` (a feed that pushes like a piston; they still push others).
+        ``rotation_locked`` (None: :attr:`rotation_locked`, the case's ``particles.rotation``):
+        the spheres never spin (their spin is set to 0 and contact torques are ignored).
+
+        ``held`` per row: 0 free, 1 held (a feed), 2 translating freely with the spin locked."""
         pos = np.atleast_2d(np.asarray(pos, float))
         m = len(pos)
         if pos.shape != (m, 3):
@@ -256,7 +263,9 @@ class ParticleSystem:
         vel = np.broadcast_to(np.asarray(vel, float), (m, 3))
         rad = np.broadcast_to(np.asarray(radius, float), (m,))
         rho = np.broadcast_to(np.asarray(density, float), (m,))
-        om = np.zeros((m, 3)) if omega is None else np.broadcast_to(np.asarray(omega, float), (m, 3))
+        locked = self.rotation_locked if rotation_locked is None else bool(rotation_locked)
+        om = (np.zeros((m, 3)) if omega is None or locked
+              else np.broadcast_to(np.asarray(omega, float), (m, 3)))
         lab = np.broadcast_to(np.asarray(label), (m,))
         if m == 0:
             return np.zeros(0, np.int64)
@@ -293,7 +302,7 @@ class ParticleSystem:
         self._prev[s] = -1
         self._body[s] = -1
         self._boff[s] = 0.0
-        self._held[s] = 1 if held else 0
+        self._held[s] = 1 if held else (2 if locked else 0)
         self.n += m
         self._need_rebuild = True
         self._forces_stale = True
@@ -1010,7 +1019,31 @@ class ParticleSystem:
     @property
     def held(self) -> np.ndarray:
         """(n,) bool: particles moving at a set velocity, unaffected by forces (a feed)."""
-        return self._held[: self.n].astype(bool)
+        return self._held[: self.n] == 1
+
+    def lock_rotation(self) -> int:
+        """Lock the spin of every particle and clump now in the system (spin set to 0; contact
+        torques ignored from now on), and of those added later (:attr:`rotation_locked`).  Held
+        feed particles stay held and are locked at their release.  Returns the number of units
+        (spheres and clumps) locked."""
+        self.rotation_locked = True
+        n = self.n
+        free = (self._held[:n] == 0) & (self._body[:n] < 0)
+        self._held[:n][free] = 2
+        self._omega[:n][free] = 0.0
+        k = int(free.sum())
+        if self._has_clumps():
+            c = self.clumps
+            new = c.wfix[:, 0] == 0.0
+            c.wfix[new] = 1.0
+            c.L[new] = 0.0
+            k += int(new.sum())
+            for b in np.flatnonzero(new):
+                mem = c.members[c.start[b]:c.start[b + 1]]
+                self._omega[:n][mem] = 0.0
+                self._held[:n][mem] = 2
+        self._forces_stale = True
+        return k
 
     def perturb_velocities(self, rms: float, seed: int) -> int:
         """Add a seeded random velocity to every free unit - a free sphere (not held, not a clump
@@ -1023,7 +1056,7 @@ class ParticleSystem:
         n = self.n
         body = self._body[:n]
         ids = self._ids[:n]
-        free = np.flatnonzero((body < 0) & (self._held[:n] == 0))
+        free = np.flatnonzero((body < 0) & (self._held[:n] != 1))
         keys, masses = [ids[free]], [self._mass[:n][free]]
         bodies = np.zeros(0, np.int64)
         if self._has_clumps():
@@ -1055,8 +1088,8 @@ class ParticleSystem:
     def release(self, mask) -> int:
         """Let the held particles where ``mask`` is True move under forces from now on; returns
         how many were released."""
-        mask = np.asarray(mask, bool) & (self._held[: self.n] != 0)
-        self._held[: self.n][mask] = 0
+        mask = np.asarray(mask, bool) & (self._held[: self.n] == 1)
+        self._held[: self.n][mask] = 2 if self.rotation_locked else 0
         return int(mask.sum())
 
     def set_label(self, mask, value) -> int:
@@ -1257,13 +1290,19 @@ class ParticleSystem:
     def _has_clumps(self) -> bool:
         return self.clumps is not None and self.clumps.nb > 0
 
-    def add_clumps(self, shape, com, quat=None, vel=None, omega=None, label=0) -> np.ndarray:
+    def add_clumps(self, shape, com, quat=None, vel=None, omega=None, label=0,
+                   rotation_locked: bool | None = None) -> np.ndarray:
         """Add rigid clumps of ``shape`` (:class:`cfddem.particles.clumps.ClumpShape`) with
         centres of mass ``com`` (m, 3), orientations ``quat`` (m, 4) (body principal frame ->
         lab; None: the orientation the shape was given in), velocities ``vel`` and spins
         ``omega`` (lab frame), tracer ``label`` (scalar or (m,) integers, given to every member).
+        ``rotation_locked`` (None: :attr:`rotation_locked`): the clumps keep their orientation
+        (no spin; contact torques are ignored).
         Their member spheres become particles (``body`` >= 0).  Returns
         the clumps' body ids (stable; :meth:`body_index` gives their current index)."""
+        locked = self.rotation_locked if rotation_locked is None else bool(rotation_locked)
+        if locked:
+            omega = None
         com = np.atleast_2d(np.asarray(com, float))
         m = len(com)
         if com.shape != (m, 3):
@@ -1289,13 +1328,14 @@ class ParticleSystem:
                                                      np.einsum("bji,bj->bi", R, w)))
         b0 = self.clumps.nb
         bids = self.clumps.add(m, shape.mass, shape.inertia, com, v, L, q)
+        self.clumps.wfix[b0:] = 1.0 if locked else 0.0
         s_lab = np.einsum("bij,kj->bki", R, shape.offsets)  # (m, k, 3)
         pos = (com[:, None, :] + s_lab).reshape(-1, 3)
         mvel = (v[:, None, :] + np.cross(w[:, None, :], s_lab)).reshape(-1, 3)
         rad = np.tile(shape.radii, m)
         first = self.n
         self.add_particles(pos, mvel, rad, 1.0, omega=np.repeat(w, k, axis=0),
-                           label=np.repeat(np.broadcast_to(np.asarray(label), (m,)), k))
+                           label=np.repeat(np.broadcast_to(np.asarray(label), (m,)), k), rotation_locked=locked)
         sl = slice(first, self.n)
         self._mass[sl] = np.tile(shape.member_mass, m)
         self._inertia[sl] = 0.4 * self._mass[sl] * rad**2
@@ -1320,7 +1360,7 @@ class ParticleSystem:
         c = self.clumps
         f = cl.clump_open_s if self._serial(c.nb) else cl.clump_open
         return f(c.nb, c.start, c.members, c._com, c._vel, c._L, c._quat, c._mass, c._inert, c._force,
-                 c._torque, c._ext_force, c._ext_torque, c._vfix, c._vset, self.dt, self._rotating,
+                 c._torque, c._ext_force, c._ext_torque, c._vfix, c._vset, c._wfix, self.dt, self._rotating,
                  self._Rv, self._Rw, self._pos, self._vel, self._omega, self._boff, self._plen,
                  self._plo, self._ref)
 
@@ -1329,7 +1369,7 @@ class ParticleSystem:
         g, om, ap = self.gravity, self.frame_omega, self.axis_point
         f = cl.clump_close_s if self._serial(c.nb) else cl.clump_close
         return int(f(c.nb, c.start, c.members, c._com, c._vel, c._L, c._quat, c._mass, c._inert, c._force,
-                     c._torque, c._ext_force, c._ext_torque, c._vfix, c._vset, c._cforce, self.dt, kick,
+                     c._torque, c._ext_force, c._ext_torque, c._vfix, c._vset, c._wfix, c._cforce, self.dt, kick,
                      self._rotating, self._Rv, self._Rw, self._pos, self._vel, self._omega, self._boff,
                      self._force, self._torque, self._mass, self._ext_force, self._ext_torque,
                      self._has_ext, g[0], g[1], g[2], om[0], om[1], om[2], ap[0], ap[1], ap[2],

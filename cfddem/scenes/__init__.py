@@ -106,6 +106,10 @@ class Scene:
     def inserts_clumps(cls, r: dict) -> bool:
         return False
 
+    #: the scene pours its particles with free rotation and calls
+    #: ``ParticleSystem.lock_rotation`` itself at the end of its fill (``particles.rotation``)
+    locks_rotation_after_fill = False
+
     @classmethod
     def speed_scale(cls, case) -> float:
         return 0.0

@@ -271,6 +271,7 @@ class ShearCellScene(Scene):
     DOC = "'shear_cell': the Jenike shear cell of [shear]"
     EXAMPLE = "shear_jenike"
     SCHEMA = {"shear": SHEAR_KEYS}
+    locks_rotation_after_fill = True  # at the scraping, before the lid is placed
 
     @classmethod
     def check(cls, r: dict, case_dir) -> None:
@@ -472,6 +473,8 @@ class ShearCellScene(Scene):
         sys_ = self.sys
         g = self.g
         sys_.set_wall_active("mould", False)  # lifted off: what it held is above the scrape level
+        if self.case.particles.rotation == "locked":
+            sys_.lock_rotation()  # the sample was poured with free rotation (particles.rotation)
         settled_top = float(np.max(sys_.pos[:, 1] + sys_.radius))
         top = sys_.pos[:, 1] + sys_.radius > g.y_scrape
         k, m = sys_.remove_particles(top) if top.any() else (0, 0.0)
@@ -496,7 +499,7 @@ class ShearCellScene(Scene):
         shape = ClumpShape.from_spheres(c, g.r_lid, dens, name="lid")
         # the lid's normal in its body frame
         self._lid_normal_body = shape.frame.T @ np.array([0.0, 1.0, 0.0])
-        bid = sys_.add_clumps(shape, [[self._ring_x(), y, 0.0]])
+        bid = sys_.add_clumps(shape, [[self._ring_x(), y, 0.0]], rotation_locked=False)  # the lid tilts
         self.lid_bid = int(bid[0])
         cl = sys_.clumps
         b = self._lid()

@@ -519,6 +519,7 @@ class SiloScene(Scene):
     EXAMPLE = "silo_flat"
     SCHEMA = {"silo": SILO_KEYS}
     HAS_GAS = True
+    locks_rotation_after_fill = True  # at the gate opening
 
     @classmethod
     def check(cls, r: dict, case_dir) -> None:
@@ -824,6 +825,8 @@ class SiloScene(Scene):
         sys_.set_wall_active("gate", False)
         if self.s["frictionless_fill"] or self.s["fill_friction"] >= 0.0:
             sys_.set_friction(True)
+        if self.case.particles.rotation == "locked":
+            sys_.lock_rotation()
         if self.probe:
             self.probe.open(float(sys_.mass.sum()))
         if self.outlet is not None:
