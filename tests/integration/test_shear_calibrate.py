@@ -1,15 +1,21 @@
-"""cfddem calibrate: a two-point sweep of the small shear cell through the CLI (table, CSV, PNG),
-bulk friction rising with particle friction; target interpolation; bad input."""
+"""cfddem calibrate on the small shear cell through the CLI: bulk friction rising with particle
+friction; replicas give a standard deviation; a study grows by calls with other labels and reuses
+finished runs; rotation locked raises the bulk friction; the wall-friction sweep; target
+interpolation; bad input."""
 
 import csv
 import math
 
 import pytest
 
-from cfddem.calibrate import interpolate_target
+from cfddem.calibrate import interpolate_target, points
 from cfddem.cli import main
 
 from .test_shear_cell import CASE
+
+
+def _rows(path):
+    return list(csv.DictReader(open(path)))
 
 
 def test_calibrate_sweep_writes_table_and_plot(write_case, tmp_path, one_numba_thread):
@@ -17,15 +23,73 @@ def test_calibrate_sweep_writes_table_and_plot(write_case, tmp_path, one_numba_t
     out = tmp_path / "cal_out"
     rc = main(["calibrate", str(d), "--mu", "0.1,0.6", "--out", str(out), "--target", "0.3", "--threads", "1"])
     assert rc == 0
-    rows = list(csv.DictReader(open(out / "calibration.csv")))
-    assert [float(r["mu"]) for r in rows] == [0.1, 0.6]
+    rows = _rows(out / "calibration.csv")
+    assert [float(r["x"]) for r in rows] == [0.1, 0.6]
+    assert all(r["label"] == "spheres" and r["rotation"] == "free" and r["n"] == "1" for r in rows)
     f = [float(r["friction"]) for r in rows]
     assert all(math.isfinite(x) for x in f)
     assert f[1] > f[0] + 0.05  # more particle friction, more bulk friction
     assert all(abs(float(r["load_error"])) < 0.01 for r in rows)
     assert (out / "calibration.png").stat().st_size > 5000
     md = (out / "calibration.md").read_text()
-    assert "| 0.1 | 0 |" in md and "Target bulk friction 0.3" in md
+    assert "| spheres | free | 0 | 0.1 |" in md and "Target bulk friction 0.3" in md
+    # the second call with another label adds to the study; the first label's runs are reused
+    mtime = (out / "spheres_free_mur0_mu0.1_s5" / "results.h5").stat().st_mtime
+    rc = main(["calibrate", str(d), "--mu", "0.1", "--rotation", "locked", "--label", "locked_only", "--out",
+               str(out), "--threads", "1"])
+    assert rc == 0
+    rows = _rows(out / "calibration.csv")
+    assert {(r["label"], r["rotation"], r["x"]) for r in rows} == {
+        ("spheres", "free", "0.1"), ("spheres", "free", "0.6"), ("locked_only", "locked", "0.1")}
+    assert (out / "spheres_free_mur0_mu0.1_s5" / "results.h5").stat().st_mtime == mtime
+    # particles that cannot roll shear harder at the same contact friction (the sample poured
+    # with locked spins is another packing too; the gap in this cell is 0.07 at mu = 0.1)
+    locked = [float(r["friction"]) for r in rows if r["label"] == "locked_only"][0]
+    assert locked > f[0] + 0.03
+
+
+def test_replicas_and_reuse(write_case, tmp_path, one_numba_thread, capsys):
+    d = write_case(CASE.format(clump="none", variant="bulk", n=330), name="cal")
+    out = tmp_path / "rep"
+    assert main(["calibrate", str(d), "--mu", "0.5", "--replicas", "2", "--out", str(out), "--threads", "1"]) == 0
+    runs = _rows(out / "runs.csv")
+    assert sorted(int(r["seed"]) for r in runs) == [5, 6]
+    f = [float(r["friction"]) for r in runs]
+    assert f[0] != f[1]  # two packings
+    pt = _rows(out / "calibration.csv")[0]
+    assert int(pt["n"]) == 2
+    assert float(pt["friction"]) == pytest.approx(sum(f) / 2, rel=1e-12)
+    assert float(pt["friction_std"]) == pytest.approx(abs(f[0] - f[1]) / math.sqrt(2), rel=1e-9)
+    capsys.readouterr()
+    # the same call again: nothing is run again, the numbers are the same
+    assert main(["calibrate", str(d), "--mu", "0.5", "--replicas", "2", "--out", str(out), "--threads", "1"]) == 0
+    assert capsys.readouterr().out.count("reused") == 2
+    assert [float(r["friction"]) for r in _rows(out / "runs.csv")] == f
+
+
+def test_wall_friction_sweep(write_case, tmp_path, one_numba_thread):
+    d = write_case(CASE.format(clump="none", variant="bulk", n=200), name="calw")
+    out = tmp_path / "wall"
+    assert main(["calibrate", str(d), "--mu-wall", "0.1,0.5", "--mu-r", "0", "--rotation", "free,locked",
+                 "--out", str(out), "--threads", "1"]) == 0
+    rows = _rows(out / "calibration.csv")
+    f = {(r["rotation"], float(r["x"])): float(r["friction"]) for r in rows}
+    # free spheres roll on the plate: the wall friction stays below the plate's contact friction
+    # (0.092 and 0.070 in this 2 mm shear of 160 spheres: rolling, not the plate, sets it)
+    assert 0.0 < f["free", 0.1] < 0.1 and 0.0 < f["free", 0.5] < 0.5
+    # locked spheres can only slide: the wall friction is the plate's contact friction, less the
+    # share of the load the ring's wall carries (0.0997 and 0.446 measured)
+    assert 0.9 * 0.1 < f["locked", 0.1] <= 1.02 * 0.1
+    assert 0.85 * 0.5 < f["locked", 0.5] <= 1.02 * 0.5
+    assert "wall friction against `shear.plate.mu`" in (out / "calibration.md").read_text()
+
+
+def test_points_mean_and_std():
+    rows = [dict(label="a", rotation="free", mu_r=0.0, x=0.2, friction=v, shear_force=1.0, normal_force=2.0,
+                 load_error=0.0, wall_s=1.0) for v in (0.3, 0.4, math.nan)]
+    (p,) = points(rows)
+    assert p["n"] == 2 and p["friction"] == pytest.approx(0.35) and p["friction_std"] == pytest.approx(0.0707107)
+    assert p["wall_s"] == 3.0
 
 
 def test_interpolate_target():
@@ -39,5 +103,9 @@ def test_calibrate_bad_input(write_case, tmp_path, capsys):
     assert main(["calibrate", str(d), "--mu", "0.1,x", "--out", str(tmp_path / "o")]) == 2
     box = write_case("[geometry]\ntype = 'box'\n", name="box")
     assert main(["calibrate", str(box), "--mu", "0.1", "--out", str(tmp_path / "o2")]) == 2
+    assert main(["calibrate", str(d), "--mu", "0.1", "--mu-wall", "0.2", "--out", str(tmp_path / "o3")]) == 2
+    assert main(["calibrate", str(d), "--mu", "0.1", "--rotation", "fixed", "--out", str(tmp_path / "o4")]) == 2
+    assert main(["calibrate", str(d), "--mu", "0.1", "--replicas", "0", "--out", str(tmp_path / "o5")]) == 2
     err = capsys.readouterr().err
-    assert "--mu" in err and "geometry.type" in err
+    assert "--mu" in err and "geometry.type" in err and "--rotation" in err and "--replicas" in err
+    assert not any((tmp_path / f"o{k}").exists() for k in ("", "2", "3", "4", "5"))
