@@ -34,10 +34,13 @@ import numpy as np
 
 from .errors import CaseError
 
-RUN_KEYS = ["label", "rotation", "mu_r", "x", "seed", "friction", "shear_force", "normal_force", "load_error",
+RUN_KEYS = ["label", "rotation", "mu_r", "x", "seed", "friction", "rise", "shear_force", "normal_force", "load_error",
             "inertial_number", "n_sample", "status", "wall_s", "folder"]
-POINT_KEYS = ["label", "rotation", "mu_r", "x", "friction", "friction_std", "n", "shear_force", "normal_force",
-              "load_error", "wall_s"]
+POINT_KEYS = ["label", "rotation", "mu_r", "x", "friction", "friction_std", "n", "rise", "jammed", "shear_force",
+              "normal_force", "load_error", "wall_s"]
+#: a mean ratio above this is no friction of the sample: a shear force larger than the normal load
+#: can only be carried by the rings' walls squeezing a sample that locks between them
+JAMMED = 1.0
 
 
 def add_calibrate_parser(sub) -> None:
@@ -134,7 +137,7 @@ def calibrate(case_dir, xs, murs, out, overrides=(), threads=None, overwrite=Fal
                         ov.append(f"time.threads={int(threads)}")
                     case = load_case(case_dir, overrides=ov)
                     row = {"label": label, "rotation": rot, "mu_r": mur, "x": x, "seed": seed, "friction": math.nan,
-                           "shear_force": math.nan, "normal_force": math.nan, "load_error": math.nan,
+                           "rise": math.nan, "shear_force": math.nan, "normal_force": math.nan, "load_error": math.nan,
                            "inertial_number": math.nan, "n_sample": 0, "status": "", "wall_s": math.nan,
                            "folder": sub.name}
                     if not overwrite and run_is_complete(sub, case):
@@ -152,7 +155,8 @@ def calibrate(case_dir, xs, murs, out, overrides=(), threads=None, overwrite=Fal
                         sh = m["shear"]
                         row.update(friction=float(m[name]), shear_force=float(sh["mean_shear_force"]),
                                    normal_force=float(sh["mean_normal_force"]), load_error=float(sh["load_error"]),
-                                   inertial_number=float(sh["inertial_number"]), n_sample=int(sh["n_samples"]))
+                                   inertial_number=float(sh["inertial_number"]), n_sample=int(sh["n_samples"]),
+                                   rise=window_rise(sh))
                     except (KeyError, OSError) as e:
                         row["status"] = f"{row['status']} (no measurement: {e})"
                     done_here.append(row)
@@ -165,6 +169,22 @@ def calibrate(case_dir, xs, murs, out, overrides=(), threads=None, overwrite=Fal
     return rows
 
 
+def window_rise(sh) -> float:
+    """How much the ratio S / (N + W) still changes across the steady window of a run's
+    ``/measurements/shear``: (ratio over the window's second half - over its first half) / ratio
+    over the whole window.  Near 0 at a steady state; NaN with fewer than 4 samples."""
+    d = np.asarray(sh["displacement"], float)
+    lo, hi = np.asarray(sh["window"], float)[:2]
+    sel = np.flatnonzero((d >= lo) & (d <= hi))
+    if len(sel) < 4:
+        return math.nan
+    S = np.asarray(sh["shear_force"], float)[sel]
+    NW = np.asarray(sh["normal_force"], float)[sel] + np.asarray(sh["weight_above"], float)[sel]
+    k = len(sel) // 2
+    whole = S.mean() / NW.mean()
+    return float((S[k:].mean() / NW[k:].mean() - S[:k].mean() / NW[:k].mean()) / whole)
+
+
 def _read_runs(out: Path) -> list[dict]:
     """The rows of ``OUT/runs.csv`` (an earlier call's), numbers parsed; [] when absent."""
     p = out / "runs.csv"
@@ -173,9 +193,9 @@ def _read_runs(out: Path) -> list[dict]:
     rows = []
     with open(p, newline="") as f:
         for r in csv.DictReader(f):
-            for k in ("mu_r", "x", "friction", "shear_force", "normal_force", "load_error", "inertial_number",
+            for k in ("mu_r", "x", "friction", "rise", "shear_force", "normal_force", "load_error", "inertial_number",
                       "wall_s"):
-                r[k] = float(r[k])
+                r[k] = float(r.get(k) or "nan")
             r["seed"] = int(r["seed"])
             r["n_sample"] = int(r["n_sample"])
             rows.append(r)
@@ -184,7 +204,8 @@ def _read_runs(out: Path) -> list[dict]:
 
 def points(rows: list[dict]) -> list[dict]:
     """Mean, standard deviation (ddof 1; NaN for one replica) and count of the finite frictions
-    over the replicas of each (label, rotation, mu_r, x); wall time summed."""
+    over the replicas of each (label, rotation, mu_r, x), the mean rise across the window;
+    ``jammed`` where the mean exceeds :data:`JAMMED`; wall time summed."""
     groups: dict[tuple, list[dict]] = {}
     for r in rows:
         groups.setdefault((r["label"], r["rotation"], r["mu_r"], r["x"]), []).append(r)
@@ -200,6 +221,7 @@ def points(rows: list[dict]) -> list[dict]:
 
         pts.append({"label": lab, "rotation": rot, "mu_r": mur, "x": x, "friction": mean("friction"),
                     "friction_std": float(np.std(f[ok], ddof=1)) if n > 1 else math.nan, "n": n,
+                    "rise": mean("rise"), "jammed": int(n > 0 and mean("friction") > JAMMED),
                     "shear_force": mean("shear_force"), "normal_force": mean("normal_force"),
                     "load_error": mean("load_error"),
                     "wall_s": float(np.nansum([r["wall_s"] for r in rs]))})
@@ -220,14 +242,18 @@ def _write(rows, out: Path, name: str, xkey: str, target) -> None:
             w.writerow(p)
     title = name.replace("_", " ")
     lines = [f"# Shear-cell calibration: {title} against `{xkey}`", "",
-             "Mean and standard deviation over the replicas (n: runs with a measurement); forces are "
-             "means over the steady window; wall time summed over the replicas.", "",
-             f"| sample | rotation | mu_r | {xkey} | {title} | std | n | shear force (N) | N + W (N) | load error |"
-             " wall (s) |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "Mean and standard deviation over the replicas (n: runs with a measurement); rise: how much "
+             "the ratio still grows from the first to the second half of the window (0: steady); forces are "
+             "means over the window; wall time summed over the replicas.  JAMMED: a ratio above "
+             f"{JAMMED:g}, a shear force larger than the normal load, which only the rings' walls can carry "
+             "(the sample locks between the rings instead of shearing; not drawn in the chart).", "",
+             f"| sample | rotation | mu_r | {xkey} | {title} | std | n | rise | shear force (N) | N + W (N) |"
+             " load error | wall (s) |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for p in pts:
-        lines.append(f"| {p['label']} | {p['rotation']} | {p['mu_r']:g} | {p['x']:g} | {p['friction']:.4f} | "
-                     f"{p['friction_std']:.3f} | {p['n']} | {p['shear_force']:.4g} | {p['normal_force']:.4g} | "
-                     f"{100 * p['load_error']:.2g} % | {p['wall_s']:.0f} |")
+        jam = " JAMMED" if p["jammed"] else ""
+        lines.append(f"| {p['label']} | {p['rotation']} | {p['mu_r']:g} | {p['x']:g} | {p['friction']:.4f}{jam} | "
+                     f"{p['friction_std']:.3f} | {p['n']} | {100 * p['rise']:+.0f} % | {p['shear_force']:.4g} | "
+                     f"{p['normal_force']:.4g} | {100 * p['load_error']:.2g} % | {p['wall_s']:.0f} |")
     bad = [r for r in rows if r["status"] != "done"]
     if bad:
         lines += ["", "Runs that did not finish: " + ", ".join(f"{r['folder']} ({r['status']})" for r in bad)]
@@ -236,6 +262,7 @@ def _write(rows, out: Path, name: str, xkey: str, target) -> None:
         lines += ["", f"Target {title} {target:g}:"]
         for lab, rot, mur in curves:
             sel = [p for p in pts if (p["label"], p["rotation"], p["mu_r"]) == (lab, rot, mur)]
+            sel = [p for p in sel if not p["jammed"]]
             m = interpolate_target([p["x"] for p in sel], [p["friction"] for p in sel], target)
             lines.append(f"- {lab}, {rot}, mu_r = {mur:g}: {xkey} = {m:.4g}" if math.isfinite(m) else
                          f"- {lab}, {rot}, mu_r = {mur:g}: not reached in the swept range")
@@ -256,8 +283,8 @@ def _plot(pts, path: Path, title: str, xkey: str, target) -> None:
     for ax, lab in zip(axes[0], labels):
         for rot, ls, mk in (("free", "-", "o"), ("locked", "--", "s")):
             for c, mur in zip(colours, murs):
-                sel = sorted([p for p in pts if (p["label"], p["rotation"], p["mu_r"]) == (lab, rot, mur)],
-                             key=lambda p: p["x"])
+                sel = sorted([p for p in pts if (p["label"], p["rotation"], p["mu_r"]) == (lab, rot, mur)
+                              and not p["jammed"]], key=lambda p: p["x"])
                 if not sel:
                     continue
                 err = [p["friction_std"] if math.isfinite(p["friction_std"]) else 0.0 for p in sel]
@@ -266,6 +293,11 @@ def _plot(pts, path: Path, title: str, xkey: str, target) -> None:
                             label=f"mu_r = {mur:g}" + (", rotation locked" if rot == "locked" else ""))
         if target is not None:
             ax.axhline(target, color="k", ls=":", lw=1, label=f"target {target:g}")
+        jam = [p for p in pts if p["label"] == lab and p["jammed"]]
+        if jam:
+            ax.text(0.02, 0.98, "jammed, not drawn:\n" + "\n".join(
+                f"{p['rotation']}, mu_r {p['mu_r']:g}, x {p['x']:g}: {p['friction']:.3g}" for p in jam),
+                transform=ax.transAxes, va="top", fontsize=7)
         ax.set_title(lab, fontsize=11)
         ax.set_xlabel(xkey.replace("contact.particle_particle.", "particle-particle ").replace(
             "shear.plate.", "particle-plate "), fontsize=10)

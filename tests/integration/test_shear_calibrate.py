@@ -8,7 +8,9 @@ import math
 
 import pytest
 
-from cfddem.calibrate import interpolate_target, points
+import numpy as np
+
+from cfddem.calibrate import interpolate_target, points, window_rise
 from cfddem.cli import main
 
 from .test_shear_cell import CASE
@@ -85,11 +87,25 @@ def test_wall_friction_sweep(write_case, tmp_path, one_numba_thread):
 
 
 def test_points_mean_and_std():
-    rows = [dict(label="a", rotation="free", mu_r=0.0, x=0.2, friction=v, shear_force=1.0, normal_force=2.0,
+    rows = [dict(label="a", rotation="free", mu_r=0.0, x=0.2, friction=v, rise=0.1, shear_force=1.0, normal_force=2.0,
                  load_error=0.0, wall_s=1.0) for v in (0.3, 0.4, math.nan)]
-    (p,) = points(rows)
+    rows += [dict(rows[0], x=1.0, friction=v) for v in (13.8, 14.6)]
+    p, q = points(rows)
     assert p["n"] == 2 and p["friction"] == pytest.approx(0.35) and p["friction_std"] == pytest.approx(0.0707107)
-    assert p["wall_s"] == 3.0
+    assert p["wall_s"] == 3.0 and p["rise"] == pytest.approx(0.1) and not p["jammed"]
+    assert q["jammed"]  # a shear force 14 times the normal load is no friction of the sample
+
+
+def test_window_rise():
+    d = np.linspace(0.0, 0.006, 61)
+    steady = {"displacement": d, "window": np.array([0.003, 0.006]), "normal_force": np.full(61, 10.0),
+              "weight_above": np.full(61, 1.0), "shear_force": np.full(61, 5.5)}
+    assert window_rise(steady) == 0.0
+    # a shear force still growing in proportion to the travel (a jammed sample): the 31 samples
+    # from 3 to 6 mm split 15 / 16, the halves' means 3.7 and 5.25 (x 1/11), the whole 4.5
+    rising = dict(steady, shear_force=1000.0 * d)
+    assert window_rise(rising) == pytest.approx((5.25 - 3.7) / 4.5, rel=1e-9)
+    assert math.isnan(window_rise(dict(steady, window=np.array([0.0031, 0.0033]))))
 
 
 def test_interpolate_target():
