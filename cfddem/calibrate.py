@@ -293,6 +293,9 @@ def _plot(pts, path: Path, title: str, xkey: str, target) -> None:
                             label=f"mu_r = {mur:g}" + (", rotation locked" if rot == "locked" else ""))
         if target is not None:
             ax.axhline(target, color="k", ls=":", lw=1, label=f"target {target:g}")
+        if xkey == "shear.plate.mu":  # pure sliding on the plate gives the contact friction
+            xs = [p["x"] for p in pts]
+            ax.plot([0.0, max(xs)], [0.0, max(xs)], color="0.6", ls=":", lw=1, label="= plate friction")
         jam = [p for p in pts if p["label"] == lab and p["jammed"]]
         if jam:
             ax.text(0.02, 0.98, "jammed, not drawn:\n" + "\n".join(
