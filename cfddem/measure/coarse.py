@@ -554,13 +554,15 @@ def default_grid(system, width: float, cutoff: float):
     return lo, hi
 
 
-def vertical_profile(fields: CoarseFields, system, up_axis: int, up: float) -> dict:
+def vertical_profile(fields: CoarseFields, system, up_axis: int, up: float, base: float | None = None) -> dict:
     """Cross-section averages against height: the integral over the horizontal cells divided by
     the bodies' horizontal extent W x T (centres +- radius; the period on periodic axes), so
     that a grid wider than the bed loses nothing.  Returns height (up from the lowest body
     surface), density, vertical pressure -sigma_vv (Pa, compression positive), W, T (the first
     and second horizontal axes), the axes, the bed's bulk density rho_b (mean density over the
-    middle half of the bed) and the equivalent flat fill height H = M / (rho_b W T)."""
+    middle half of the bed) and the equivalent flat fill height H = M / (rho_b W T).  ``base``:
+    the level heights are measured from (up times the coordinate; default the lowest body
+    surface), e.g. a silo's floor below which bodies rest in the outlet."""
     hz = [a for a in range(3) if a != up_axis]
     ext = []
     for a in hz:
@@ -575,7 +577,8 @@ def vertical_profile(fields: CoarseFields, system, up_axis: int, up: float) -> d
     dens *= area_cell / (W * T)
     pv = -svv * area_cell / (W * T)
     z = fields.centres(up_axis)
-    base = np.min(up * system.pos[:, up_axis] - system.radius)
+    if base is None:
+        base = np.min(up * system.pos[:, up_axis] - system.radius)
     h = up * z - base
     order = np.argsort(h)
     h, dens, pv = h[order], dens[order], pv[order]
