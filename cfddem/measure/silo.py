@@ -304,7 +304,7 @@ def rows_at_heights(y, values, heights) -> np.ndarray:
             continue
         j = int(min(np.searchsorted(y, z, side="right") - 1, len(y) - 2))
         f = (z - y[j]) / (y[j + 1] - y[j])
-        out[k] = (1.0 - f) * v[j] + f * v[j + 1]
+        out[k] = v[j] if f == 0.0 else v[j + 1] if f == 1.0 else (1.0 - f) * v[j] + f * v[j + 1]
     return out
 
 
@@ -314,14 +314,17 @@ def kinematic_profile(x, v0: float, B: float, z: float):
     return v0 * np.exp(-np.asarray(x, float) ** 2 / (4.0 * B * z))
 
 
-def fit_kinematic_B(x, speed, z: float, xc: float, max_rel_err: float = 0.5, min_points: int = 4) -> dict:
+def fit_kinematic_B(x, speed, z: float, xc: float, max_rel_err: float = 0.5, min_points: int = 4,
+                    min_drop: float = 0.25) -> dict:
     """Fit v(x) = v0 exp(-(x - xc)^2 / (4 B z)) to a downward-speed profile ``speed`` (m/s,
     positive down) across the width at height ``z`` (m above the outlet) by
     ``scipy.optimize.curve_fit`` (parameters v0 and B, m).  Returns B, B_err (one standard
     error), v0, v0_err, the number of points and ``reason``: "" for a meaningful fit, otherwise
     why B is NaN: fewer than ``min_points`` finite points, no downward flow on the centreline
-    (largest speed <= 0), z <= 0, the fit failed, or its relative error exceeds ``max_rel_err``
-    (a profile too flat or too noisy to fix a width: e.g. plug flow across the whole silo)."""
+    (largest speed <= 0), z <= 0, the fit failed, its relative error exceeds ``max_rel_err`` (a
+    profile too noisy to fix a width), or the fitted curve falls by less than ``min_drop`` of v0
+    between the centre and the farthest point (a profile too flat: e.g. plug flow across the
+    whole silo, where any large B fits)."""
     from scipy.optimize import curve_fit
 
     x = np.asarray(x, float) - xc
@@ -352,6 +355,11 @@ def fit_kinematic_B(x, speed, z: float, xc: float, max_rel_err: float = 0.5, min
         return out
     err = np.sqrt(np.diag(pcov)) if np.all(np.isfinite(pcov)) else np.array([math.nan, math.nan])
     out.update(v0=float(popt[0]), v0_err=float(err[0]))
+    drop = 1.0 - math.exp(-float(np.max(x ** 2)) / (4.0 * popt[1] * z))
+    if drop < min_drop:
+        out["reason"] = (f"the fitted profile falls by only {drop:.0%} across the width (below {min_drop:.0%}): "
+                         f"too flat to fix B (B = {popt[1]:.3g} m)")
+        return out
     if not (np.isfinite(err[1]) and err[1] <= max_rel_err * popt[1]):
         out["reason"] = (f"relative error of B {err[1] / popt[1]:.2g} above {max_rel_err:g} (B = {popt[1]:.3g} m)"
                          if np.isfinite(err[1]) else "no error estimate (singular fit)")
