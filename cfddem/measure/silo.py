@@ -384,6 +384,20 @@ def centreline_velocity(pos, vel, xc: float, heights, half_x: float, half_y: flo
     return out
 
 
+def bed_top(field: VelocityField, share: float = 0.25) -> float:
+    """Top of the highest row of a time-averaged field in which every cell holds at least
+    ``share`` of the median particle-sample count of the occupied cells (NaN when none): the
+    bed that stayed in place over the averaging window, without the rows of the free surface
+    that the particles left during it (there the cells at the walls or over the crater are
+    empty part of the time and a channel boundary would be found in the empty cells)."""
+    c = field.count
+    occ = c[c > 0]
+    if not occ.size:
+        return math.nan
+    full = np.nonzero((c >= share * float(np.median(occ))).all(axis=1))[0]
+    return float(field.y[full[-1]] + 0.5 * field.dy) if len(full) else math.nan
+
+
 def profile_measurements(field_all: VelocityField, field_front: VelocityField, xc: float, heights,
                          fraction: float = 0.1) -> dict:
     """The chapter-5 profile measurements of two time-averaged fields over the same grid (the
@@ -392,8 +406,8 @@ def profile_measurements(field_all: VelocityField, field_front: VelocityField, x
     fitted to the downward speed (:func:`fit_kinematic_B`, NaN where not meaningful, with the
     reason), the flow-channel boundary and width there (:func:`channel_boundary` of the depth
     average at ``fraction`` of the centreline speed), and the flow pattern of the depth-averaged
-    field (:func:`cfddem.measure.blending.classify_flow_pattern` at the same fraction; "" when it
-    cannot classify, e.g. no sample)."""
+    field (:func:`cfddem.measure.blending.classify_flow_pattern` at the same fraction, over the
+    rows up to :func:`bed_top`; "" when it cannot classify, e.g. no sample)."""
     from .blending import classify_flow_pattern
 
     h = np.asarray(heights, float)
@@ -414,9 +428,10 @@ def profile_measurements(field_all: VelocityField, field_front: VelocityField, x
     xr = rows_at_heights(y, cb["x_right"][:, None], h)[:, 0]
     out["channel"] = {"x_left": xl, "x_right": xr, "width": xr - xl, "fraction": float(fraction)}
     pattern, details = "", {}
-    if field_all.n_samples and np.isfinite(vy).any():
+    H = bed_top(field_all)
+    if field_all.n_samples and np.isfinite(vy).any() and math.isfinite(H):
         try:
-            fp = classify_flow_pattern(x, y, vy, fraction=fraction, xc=xc)
+            fp = classify_flow_pattern(x, y, vy, fill_height=H, fraction=fraction, xc=xc)
             pattern = fp["pattern"]
             details = {k: fp[k] for k in ("h_t", "h_t_over_H", "fill_height", "stagnant_fraction")}
         except ValueError as e:

@@ -153,3 +153,18 @@ def test_periodic_depth_is_refused_in_the_blender_and_with_mesh_walls():
     with pytest.raises(CaseError) as e:
         build_case(raw)
     assert e.value.key in ("silo.walls", "silo.depth_boundary")
+
+
+def test_bed_top_leaves_out_the_rows_the_surface_left():
+    from cfddem.measure.silo import bed_top
+
+    f = VelocityField(0.0, 0.04, 0.0, 0.04, 0.01)  # 4 x 4 cells
+    f.count[:3] = 10.0
+    f.count[0, 0] = 5.0  # a wall cell with half the count still counts
+    f.count[3, 1:] = 10.0  # the top row: one cell empty (the surface left it)
+    assert bed_top(f) == pytest.approx(0.03)
+    f.count[0, 1:] = 0.0  # the row through the slot below the floor: partly empty, the bed above counts
+    assert bed_top(f) == pytest.approx(0.03)
+    f.count[2, 2] = 2.0  # under a quarter of the median: the row is not part of the bed
+    assert bed_top(f) == pytest.approx(0.02)
+    assert math.isnan(bed_top(VelocityField(0.0, 0.04, 0.0, 0.04, 0.01)))
