@@ -334,26 +334,44 @@ def _floats(text: str, key: str) -> list[float]:
         raise CaseError(key, f"{text!r}: expected numbers separated by commas") from None
 
 
-def main(argv=None) -> int:
-    from .config import load_case
-    from .sweep import run_sweep
-
-    ap = argparse.ArgumentParser(prog="python -m cfddem.silo_prisms", description=__doc__.split("\n\n")[0])
-    ap.add_argument("study", choices=("silos", "clogging", "sensitivity"))
-    ap.add_argument("--case", default=str(CASE), help="the silo case (default cases/silo_prisms)")
-    ap.add_argument("--replicas", type=int, default=1, help="fills per silo or variant (particles.seed 1..N)")
-    ap.add_argument("--angles", help="hopper angles (deg from the horizontal, 0 flat), comma-separated")
-    ap.add_argument("--widths", help="outlet widths (m), comma-separated")
+def add_study_arguments(ap, case: Path) -> None:
+    """The arguments every silo study command takes: --case, --set, --out, --workers, --threads."""
+    ap.add_argument("--case", default=str(case), help=f"the silo case (default cases/{case.name})")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                     help="override a key in every run")
     ap.add_argument("--out", help="study folder (default CASE/<study>)")
     ap.add_argument("--workers", type=int, help="local worker processes")
     ap.add_argument("--threads", type=int, default=1, help="numba threads per run (default 1)")
+
+
+def study_done(prog: str, files, rows: list[dict]) -> int:
+    """Print the files a study wrote; exit code 0 when every run finished (or was reused), else 3."""
+    print(f"{prog}: " + ", ".join(str(p) for p in files))
+    return 0 if all(r.get("status") in ("done", "skipped") for r in rows) else 3
+
+
+def load_study_case(args):
+    """The study's case (``args.case`` with ``args.overrides``), refused unless a silo."""
+    from .config import load_case
+
+    base = load_case(args.case, overrides=args.overrides)
+    if base.geometry.type != "silo":
+        raise CaseError("geometry.type", f"{base.geometry.type!r}: the study needs a silo case")
+    return base
+
+
+def main(argv=None) -> int:
+    from .sweep import run_sweep
+
+    ap = argparse.ArgumentParser(prog="python -m cfddem.silo_prisms", description=__doc__.split("\n\n")[0])
+    ap.add_argument("study", choices=("silos", "clogging", "sensitivity"))
+    ap.add_argument("--replicas", type=int, default=1, help="fills per silo or variant (particles.seed 1..N)")
+    ap.add_argument("--angles", help="hopper angles (deg from the horizontal, 0 flat), comma-separated")
+    ap.add_argument("--widths", help="outlet widths (m), comma-separated")
+    add_study_arguments(ap, CASE)
     args = ap.parse_args(argv)
     try:
-        base = load_case(args.case, overrides=args.overrides)
-        if base.geometry.type != "silo":
-            raise CaseError("geometry.type", f"{base.geometry.type!r}: the study needs a silo case")
+        base = load_study_case(args)
         out = Path(args.out).resolve() if args.out else Path(args.case).resolve() / args.study
         d = base.particles.diameter
         if args.study == "sensitivity":
@@ -375,8 +393,7 @@ def main(argv=None) -> int:
     except CaseError as e:
         print(f"cfddem: error: {e}", file=sys.stderr)
         return 2
-    print("silo_prisms: " + ", ".join(str(p) for p in files))
-    return 0 if all(r.get("status") in ("done", "skipped") for r in rows) else 3
+    return study_done("silo_prisms", files, rows)
 
 
 if __name__ == "__main__":

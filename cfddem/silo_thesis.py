@@ -37,7 +37,8 @@ from pathlib import Path
 import numpy as np
 
 from .errors import CaseError
-from .silo_prisms import PP, PW, _floats, _plt, _save, write_table
+from .silo_prisms import (PP, PW, _floats, _plt, _save, add_study_arguments, load_study_case, study_done,
+                          write_table)
 
 CASE = Path(__file__).resolve().parent.parent / "cases" / "silo_thesis_small"
 STUDIES = ("front-back", "friction", "restitution")
@@ -167,6 +168,26 @@ def write_study(study: str, table: list[dict], out: Path, notes: list[str]) -> l
     return files
 
 
+def swept_panel(a, study: str, groups: dict, col: dict, key: str, scale: float, unit: str, ylabel: str,
+                title: str) -> None:
+    """One line per group of ``key`` x ``scale`` against the swept value; a group without one
+    (the periodic depth) as horizontal dashed lines."""
+    for g, ts in groups.items():
+        xs = np.array([t["x"] for t in ts])
+        ys = np.array([t[key] for t in ts]) * scale
+        if np.all(np.isnan(xs)):
+            for y in ys:
+                a.axhline(y, color=col[ts[0]["label"]], ls="--", label=f"{g}: {y:.4g} {unit}")
+        else:
+            a.plot(xs, ys, "o-", label=g)
+    if study == "restitution":
+        a.set_xscale("log")
+    a.set_xlabel(X_LABEL[study])
+    a.set_ylabel(ylabel)
+    a.set_title(title, fontsize=9)
+    a.legend(fontsize=7)
+
+
 def plot_study(study: str, table: list[dict], out: Path) -> list[Path]:
     """``<study>_profiles.png`` and ``<study>.png`` (module doc)."""
     plt = _plt()
@@ -231,43 +252,16 @@ def plot_study(study: str, table: list[dict], out: Path) -> list[Path]:
     a.set_ylabel(f"centreline downward velocity at {heights[k] * 1e3:g} mm (mm/s)")
     a.set_title("centreline velocity (box d x d around the centre line, full depth)", fontsize=9)
     a.legend(fontsize=7)
-    a = ax[1, 0]
     groups = {}
     for t in table:
         groups.setdefault(t["group"], []).append(t)
-    for g, ts in groups.items():
-        xs_ = np.array([t["x"] for t in ts])
-        ys = np.array([t["flow_rate"] for t in ts]) * 1e3
-        if np.all(np.isnan(xs_)):
-            for y_ in ys:
-                a.axhline(y_, color=col[ts[0]["label"]], ls="--", label=f"{g}: {y_:.1f} g/s")
-        else:
-            a.plot(xs_, ys, "o-", label=g)
-    if study == "restitution":
-        a.set_xscale("log")
-    a.set_xlabel(X_LABEL[study])
-    a.set_ylabel("mass flow rate (g/s)")
-    a.set_title("steady mass flow rate", fontsize=9)
-    a.legend(fontsize=7)
-    a = ax[1, 1]
-    for g, ts in groups.items():
-        xs_ = np.array([t["x"] for t in ts])
-        ys = np.array([t["bulk_density"] for t in ts])
-        if np.all(np.isnan(xs_)):
-            for y_ in ys:
-                a.axhline(y_, color=col[ts[0]["label"]], ls="--", label=f"{g}: {y_:.1f} kg/m3")
-        else:
-            a.plot(xs_, ys, "s-", label=g)
+    swept_panel(ax[1, 0], study, groups, col, "flow_rate", 1e3, "g/s", "mass flow rate (g/s)", "steady mass flow rate")
+    swept_panel(ax[1, 1], study, groups, col, "bulk_density", 1.0, "kg/m3", "bulk density after filling (kg/m3)",
+                "bulk density (labels: flow pattern)")
     for t in table:
         if math.isfinite(t["x"]) and t["flow_pattern"]:
-            a.annotate(t["flow_pattern"], (t["x"], t["bulk_density"]), fontsize=6, rotation=30,
-                       textcoords="offset points", xytext=(3, 3))
-    if study == "restitution":
-        a.set_xscale("log")
-    a.set_xlabel(X_LABEL[study])
-    a.set_ylabel("bulk density after filling (kg/m3)")
-    a.set_title("bulk density (labels: flow pattern)", fontsize=9)
-    a.legend(fontsize=7)
+            ax[1, 1].annotate(t["flow_pattern"], (t["x"], t["bulk_density"]), fontsize=6, rotation=30,
+                              textcoords="offset points", xytext=(3, 3))
     a = ax[1, 2]
     for t in have:
         st = t["m"].get("stress")
@@ -289,7 +283,6 @@ def plot_study(study: str, table: list[dict], out: Path) -> list[Path]:
 
 
 def main(argv=None) -> int:
-    from .config import load_case
     from .sweep import run_sweep
 
     ap = argparse.ArgumentParser(prog="python -m cfddem.silo_thesis", description=__doc__.split("\n\n")[0])
@@ -298,17 +291,10 @@ def main(argv=None) -> int:
     ap.add_argument("--no-periodic", action="store_true", help="front-back: leave out the periodic-depth variant")
     ap.add_argument("--mu", help="friction: particle-particle sliding friction values (default 0.15,0.57)")
     ap.add_argument("--mu-r", help="friction: particle-particle rolling friction values (default 0,0.1,0.2)")
-    ap.add_argument("--case", default=str(CASE), help="the silo case (default cases/silo_thesis_small)")
-    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                    help="override a key in every run")
-    ap.add_argument("--out", help="study folder (default CASE/<study>)")
-    ap.add_argument("--workers", type=int, help="local worker processes")
-    ap.add_argument("--threads", type=int, default=1, help="numba threads per run (default 1)")
+    add_study_arguments(ap, CASE)
     args = ap.parse_args(argv)
     try:
-        base = load_case(args.case, overrides=args.overrides)
-        if base.geometry.type != "silo":
-            raise CaseError("geometry.type", f"{base.geometry.type!r}: the study needs a silo case")
+        base = load_study_case(args)
         if not base.silo.profile_heights:
             raise CaseError("silo.profile_heights", "is empty: the study needs the profile heights")
         if args.study != "front-back" and args.no_periodic:
@@ -334,8 +320,7 @@ def main(argv=None) -> int:
     except CaseError as e:
         print(f"cfddem: error: {e}", file=sys.stderr)
         return 2
-    print("silo_thesis: " + ", ".join(str(p) for p in files))
-    return 0 if all(r.get("status") in ("done", "skipped") for r in rows) else 3
+    return study_done("silo_thesis", files, rows)
 
 
 if __name__ == "__main__":

@@ -10,6 +10,7 @@ import pytest
 from cfddem.config import build_case
 from cfddem.errors import CaseError
 from cfddem.measure.coarse import janssen, lateral_pressure_ratio
+from tests.unit.test_silo_scene import BASE
 from cfddem.measure.silo import (VelocityField, centreline_velocity, fit_kinematic_B, kinematic_profile,
                                  profile_measurements, rows_at_heights)
 
@@ -109,16 +110,6 @@ def test_janssen_values():
     # deep silo: the asymptote gamma z_c; no wall friction on the front: z_c = T W / (2 K mu_side T)
     assert janssen([0.0], 100.0, gamma, 0.08, 0.04, K, 0.17, 0.2)[0] == pytest.approx(gamma * zc)
     assert janssen([0.0], 100.0, gamma, 0.08, 0.04, K, 0.17, 0.0)[0] == pytest.approx(gamma * 0.08 / (2 * K * 0.17))
-
-
-BASE = {
-    "time": {"end_time": 0.1, "dt": 2e-5},
-    "particles": {"diameter": 0.0038, "density": 950.0},
-    "contact": {"particle_particle": {"k_n": 1000.0, "e_n": 0.8, "mu": 0.3},
-                "particle_wall": {"k_n": 1000.0, "e_n": 0.8, "mu": 0.3}},
-    "geometry": {"type": "silo"},
-    "silo": {"width": 0.05, "depth": 0.012, "outlet_width": 0.016, "n_particles": 50},
-}
 
 
 @pytest.mark.parametrize("silo, extra, key, words", [
