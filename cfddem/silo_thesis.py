@@ -112,6 +112,8 @@ def read_variant(row: dict, variant: dict) -> dict:
         out["stress_low"] = float(pr[band].mean()) if band.any() else math.nan
         out["janssen_low"] = float(jz[band].mean()) if band.any() else math.nan
         out["z_c"] = _num(st["z_c"])
+        for k in ("K_x", "K_z"):  # the measured lateral pressure ratios (runs from before they were stored: NaN)
+            out[k] = float(np.nanmean(np.asarray(st[k], float)[band])) if k in st and band.any() else math.nan
     return out
 
 
@@ -151,7 +153,7 @@ def write_study(study: str, table: list[dict], out: Path, notes: list[str]) -> l
     cols += [("stress_low", "sigma_v 0.1-0.2 H (Pa)", "{:.4g}"), ("janssen_low", "Janssen (Pa)", "{:.4g}"),
              ("status", "status", ""), ("wall_time", "wall (s)", "{:.0f}")]
     extra = [("x", "swept value", ""), ("fill_height", "fill height (m)", ""), ("clogged", "clogged", ""),
-             ("z_c", "Janssen z_c (m)", "")]
+             ("z_c", "Janssen z_c (m)", ""), ("K_x", "K_x measured", ""), ("K_z", "K_z measured", "")]
     extra += [(f"B_err_{h}", f"B error at {h} mm (mm)", "") for h in hs]
     extra += [(f"B_front_{h}", f"B front layer at {h} mm (mm)", "") for h in hs]
     for t in table:

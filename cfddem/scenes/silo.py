@@ -927,7 +927,12 @@ class SiloScene(Scene):
         hydro = np.where(y < 0.0, np.nan, np.where(y < H, prof["rho_b"] * g * (H - y), 0.0))
         jz = (np.where(y < 0.0, np.nan, janssen(y, H, prof["rho_b"] * g, W, T, K, mu_side, mu_front))
               if math.isfinite(zc) else hydro)
+        px, pz = prof["lateral"]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            kx = np.where(prof["pressure"] > 0, px / prof["pressure"], np.nan)
+            kz = np.where(prof["pressure"] > 0, pz / prof["pressure"], np.nan)
         return {"y": y, "pressure": prof["pressure"], "density": prof["density"], "janssen": jz, "hydrostatic": hydro,
+                "pressure_x": px, "pressure_z": pz, "K_x": kx, "K_z": kz,
                 "rho_b": prof["rho_b"], "H": H, "W": W, "T": T, "K": K, "z_c": zc, "mu_side": float(mu_side),
                 "mu_front": float(mu_front), "bulk_friction": s["bulk_friction"], "width": width,
                 "spacing": f.spacing, "time": f.time}
@@ -936,6 +941,9 @@ class SiloScene(Scene):
         "pressure": "vertical pressure -sigma_yy (Pa, compression positive), integral over the horizontal cells "
                     "/ (W T), at the gate opening",
         "y": "cell-centre height above the floor y = 0 (m); janssen and hydrostatic NaN below it",
+        "pressure_x": "-sigma_xx (Pa), the same average (against the side walls); pressure_z: -sigma_zz (against the "
+                      "front and back walls); K_x, K_z: their ratios to the vertical pressure (the lateral pressure "
+                      "ratios Janssen's K stands for)",
         "janssen": "gamma z_c (1 - exp(-(H - y) / z_c)), gamma = rho_b g, z_c = W T / (2 K (mu_side T + mu_front W)), "
                    "K = (1 - sin phi) / (1 + sin phi), tan phi = bulk_friction; H = M / (rho_b W T)"}
 
