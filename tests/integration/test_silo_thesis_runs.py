@@ -52,7 +52,7 @@ def test_study_command_writes_table_csv_and_charts(root, tmp_path):
                        cwd=root, timeout=300)
     assert p.returncode == 0, p.stderr[-2000:]
     for name in ("front-back.csv", "front-back.md", "front-back.png", "front-back_profiles.png"):
-        assert (out / name).is_file() and (out / name).stat().st_size > 1000, name
+        assert (out / name).is_file() and (out / name).stat().st_size > 300, name
     rows = list(csv.DictReader(open(out / "front-back.csv")))
     assert [r["label"] for r in rows] == ["front/back mu 0.3", "periodic depth"]
     for r in rows:
