@@ -151,7 +151,7 @@ def write_study(study: str, table: list[dict], out: Path, notes: list[str]) -> l
     cols += [(f"B_{h}", f"B at {h} mm (mm)", "{:.3g}") for h in hs]
     cols += [(f"channel_{h}", f"channel at {h} mm (mm)", "{:.3g}") for h in hs]
     cols += [("stress_low", "sigma_v 0.1-0.2 H (Pa)", "{:.4g}"), ("janssen_low", "Janssen (Pa)", "{:.4g}"),
-             ("status", "status", ""), ("wall_time", "wall (s)", "{:.0f}")]
+             ("status", "status", ""), ("wall_time", "wall time (s)", "{:.0f}")]
     extra = [("x", "swept value", ""), ("fill_height", "fill height (m)", ""), ("clogged", "clogged", ""),
              ("z_c", "Janssen z_c (m)", ""), ("K_x", "K_x measured", ""), ("K_z", "K_z measured", "")]
     extra += [(f"B_err_{h}", f"B error at {h} mm (mm)", "") for h in hs]
