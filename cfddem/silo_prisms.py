@@ -344,8 +344,15 @@ def add_study_arguments(ap, case: Path) -> None:
     ap.add_argument("--threads", type=int, default=1, help="numba threads per run (default 1)")
 
 
-def study_done(prog: str, files, rows: list[dict]) -> int:
-    """Print the files a study wrote; exit code 0 when every run finished (or was reused), else 3."""
+def run_study(prog: str, study, args) -> int:
+    """Run ``study(args)`` -> (files, rows) of a study command: a bad input is one line and exit
+    code 2; otherwise the files written are printed, exit code 0 when every run finished (or
+    was reused), else 3."""
+    try:
+        files, rows = study(args)
+    except CaseError as e:
+        print(f"cfddem: error: {e}", file=sys.stderr)
+        return 2
     print(f"{prog}: " + ", ".join(str(p) for p in files))
     return 0 if all(r.get("status") in ("done", "skipped") for r in rows) else 3
 
@@ -360,40 +367,40 @@ def load_study_case(args):
     return base
 
 
-def main(argv=None) -> int:
+def _study(args) -> tuple[list, list[dict]]:
+    """Run the study of the parsed ``args``: (files written, sweep rows)."""
     from .sweep import run_sweep
 
+    base = load_study_case(args)
+    out = Path(args.out).resolve() if args.out else Path(args.case).resolve() / args.study
+    d = base.particles.diameter
+    if args.study == "sensitivity":
+        trip = sensitivity_variants(base, args.replicas)
+        variants, labels = [o for _, _, o in trip], [(p, v) for p, v, _ in trip]
+    else:
+        angles = _floats(args.angles, "--angles") if args.angles else list(ANGLES)
+        widths = (_floats(args.widths, "--widths") if args.widths else
+                  list(WIDTHS) if args.study == "silos" else [0.04, 0.06])
+        variants = silo_variants(angles, widths, args.replicas)
+    rows = run_sweep(args.case, variants, out, common=args.overrides, workers=args.workers,
+                     threads=args.threads, chart="silo/discharge_duration")
+    if args.study == "silos":
+        files = silos_study(rows, out, d, base.silo.depth)
+    elif args.study == "clogging":
+        files = clogging_study(rows, out, d)
+    else:
+        files = sensitivity_study(rows, labels, out, base_values(base))
+    return files, rows
+
+
+def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m cfddem.silo_prisms", description=__doc__.split("\n\n")[0])
     ap.add_argument("study", choices=("silos", "clogging", "sensitivity"))
     ap.add_argument("--replicas", type=int, default=1, help="fills per silo or variant (particles.seed 1..N)")
     ap.add_argument("--angles", help="hopper angles (deg from the horizontal, 0 flat), comma-separated")
     ap.add_argument("--widths", help="outlet widths (m), comma-separated")
     add_study_arguments(ap, CASE)
-    args = ap.parse_args(argv)
-    try:
-        base = load_study_case(args)
-        out = Path(args.out).resolve() if args.out else Path(args.case).resolve() / args.study
-        d = base.particles.diameter
-        if args.study == "sensitivity":
-            trip = sensitivity_variants(base, args.replicas)
-            variants, labels = [o for _, _, o in trip], [(p, v) for p, v, _ in trip]
-        else:
-            angles = _floats(args.angles, "--angles") if args.angles else list(ANGLES)
-            widths = (_floats(args.widths, "--widths") if args.widths else
-                      list(WIDTHS) if args.study == "silos" else [0.04, 0.06])
-            variants = silo_variants(angles, widths, args.replicas)
-        rows = run_sweep(args.case, variants, out, common=args.overrides, workers=args.workers,
-                         threads=args.threads, chart="silo/discharge_duration")
-        if args.study == "silos":
-            files = silos_study(rows, out, d, base.silo.depth)
-        elif args.study == "clogging":
-            files = clogging_study(rows, out, d)
-        else:
-            files = sensitivity_study(rows, labels, out, base_values(base))
-    except CaseError as e:
-        print(f"cfddem: error: {e}", file=sys.stderr)
-        return 2
-    return study_done("silo_prisms", files, rows)
+    return run_study("silo_prisms", _study, ap.parse_args(argv))
 
 
 if __name__ == "__main__":

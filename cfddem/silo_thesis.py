@@ -31,13 +31,12 @@ from __future__ import annotations
 import argparse
 import math
 import os
-import sys
 from pathlib import Path
 
 import numpy as np
 
 from .errors import CaseError
-from .silo_prisms import (PP, PW, _floats, _plt, _save, add_study_arguments, load_study_case, study_done,
+from .silo_prisms import (PP, PW, _floats, _plt, _save, add_study_arguments, load_study_case, run_study,
                           write_table)
 
 CASE = Path(__file__).resolve().parent.parent / "cases" / "silo_thesis_small"
@@ -284,9 +283,37 @@ def plot_study(study: str, table: list[dict], out: Path) -> list[Path]:
     return files
 
 
-def main(argv=None) -> int:
+def _study(args) -> tuple[list, list[dict]]:
+    """Run the study of the parsed ``args``: (files written, sweep rows)."""
     from .sweep import run_sweep
 
+    base = load_study_case(args)
+    if not base.silo.profile_heights:
+        raise CaseError("silo.profile_heights", "is empty: the study needs the profile heights")
+    if args.study != "front-back" and args.no_periodic:
+        raise CaseError("--no-periodic", "only for the front-back study")
+    if args.study != "friction" and (args.mu or args.mu_r):
+        raise CaseError("--mu", "--mu and --mu-r are for the friction study")
+    if args.study == "friction" and args.values:
+        raise CaseError("--values", "the friction study takes --mu and --mu-r")
+    values = _floats(args.values, "--values") if args.values else None
+    variants = study_variants(args.study, values, not args.no_periodic,
+                              _floats(args.mu, "--mu") if args.mu else None,
+                              _floats(args.mu_r, "--mu-r") if args.mu_r else None)
+    out = Path(args.out).resolve() if args.out else Path(args.case).resolve() / args.study
+    rows = run_sweep(args.case, [v["overrides"] for v in variants], out, common=args.overrides,
+                     workers=args.workers, threads=args.threads, chart="mass_flow_rate")
+    table = study_table(rows, variants)
+    notes = [f"case {Path(args.case).resolve().name}" + (f" with {' '.join(args.overrides)}" if args.overrides
+                                                         else ""),
+             "B in mm (NaN/-: fit not meaningful, see the run's /measurements/silo/profiles B_notes); channel: "
+             "flow-channel width at each height; sigma_v: coarse-grained vertical stress at the end of the fill, "
+             "mean over 0.1-0.2 of the fill height, and Janssen's there"] + machine_notes()
+    files = write_study(args.study, table, out, notes)
+    return files, rows
+
+
+def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m cfddem.silo_thesis", description=__doc__.split("\n\n")[0])
     ap.add_argument("study", choices=STUDIES)
     ap.add_argument("--values", help="front-back: wall friction values; restitution: e values (comma-separated)")
@@ -294,35 +321,7 @@ def main(argv=None) -> int:
     ap.add_argument("--mu", help="friction: particle-particle sliding friction values (default 0.15,0.57)")
     ap.add_argument("--mu-r", help="friction: particle-particle rolling friction values (default 0,0.1,0.2)")
     add_study_arguments(ap, CASE)
-    args = ap.parse_args(argv)
-    try:
-        base = load_study_case(args)
-        if not base.silo.profile_heights:
-            raise CaseError("silo.profile_heights", "is empty: the study needs the profile heights")
-        if args.study != "front-back" and args.no_periodic:
-            raise CaseError("--no-periodic", "only for the front-back study")
-        if args.study != "friction" and (args.mu or args.mu_r):
-            raise CaseError("--mu", "--mu and --mu-r are for the friction study")
-        if args.study == "friction" and args.values:
-            raise CaseError("--values", "the friction study takes --mu and --mu-r")
-        values = _floats(args.values, "--values") if args.values else None
-        variants = study_variants(args.study, values, not args.no_periodic,
-                                  _floats(args.mu, "--mu") if args.mu else None,
-                                  _floats(args.mu_r, "--mu-r") if args.mu_r else None)
-        out = Path(args.out).resolve() if args.out else Path(args.case).resolve() / args.study
-        rows = run_sweep(args.case, [v["overrides"] for v in variants], out, common=args.overrides,
-                         workers=args.workers, threads=args.threads, chart="mass_flow_rate")
-        table = study_table(rows, variants)
-        notes = [f"case {Path(args.case).resolve().name}" + (f" with {' '.join(args.overrides)}" if args.overrides
-                                                             else ""),
-                 "B in mm (NaN/-: fit not meaningful, see the run's /measurements/silo/profiles B_notes); channel: "
-                 "flow-channel width at each height; sigma_v: coarse-grained vertical stress at the end of the fill, "
-                 "mean over 0.1-0.2 of the fill height, and Janssen's there"] + machine_notes()
-        files = write_study(args.study, table, out, notes)
-    except CaseError as e:
-        print(f"cfddem: error: {e}", file=sys.stderr)
-        return 2
-    return study_done("silo_thesis", files, rows)
+    return run_study("silo_thesis", _study, ap.parse_args(argv))
 
 
 if __name__ == "__main__":
