@@ -334,49 +334,73 @@ def _floats(text: str, key: str) -> list[float]:
         raise CaseError(key, f"{text!r}: expected numbers separated by commas") from None
 
 
-def main(argv=None) -> int:
-    from .config import load_case
-    from .sweep import run_sweep
-
-    ap = argparse.ArgumentParser(prog="python -m cfddem.silo_prisms", description=__doc__.split("\n\n")[0])
-    ap.add_argument("study", choices=("silos", "clogging", "sensitivity"))
-    ap.add_argument("--case", default=str(CASE), help="the silo case (default cases/silo_prisms)")
-    ap.add_argument("--replicas", type=int, default=1, help="fills per silo or variant (particles.seed 1..N)")
-    ap.add_argument("--angles", help="hopper angles (deg from the horizontal, 0 flat), comma-separated")
-    ap.add_argument("--widths", help="outlet widths (m), comma-separated")
+def add_study_arguments(ap, case: Path) -> None:
+    """The arguments every silo study command takes: --case, --set, --out, --workers, --threads."""
+    ap.add_argument("--case", default=str(case), help=f"the silo case (default cases/{case.name})")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                     help="override a key in every run")
     ap.add_argument("--out", help="study folder (default CASE/<study>)")
     ap.add_argument("--workers", type=int, help="local worker processes")
     ap.add_argument("--threads", type=int, default=1, help="numba threads per run (default 1)")
-    args = ap.parse_args(argv)
+
+
+def run_study(prog: str, study, args) -> int:
+    """Run ``study(args)`` -> (files, rows) of a study command: a bad input is one line and exit
+    code 2; otherwise the files written are printed, exit code 0 when every run finished (or
+    was reused), else 3."""
     try:
-        base = load_case(args.case, overrides=args.overrides)
-        if base.geometry.type != "silo":
-            raise CaseError("geometry.type", f"{base.geometry.type!r}: the study needs a silo case")
-        out = Path(args.out).resolve() if args.out else Path(args.case).resolve() / args.study
-        d = base.particles.diameter
-        if args.study == "sensitivity":
-            trip = sensitivity_variants(base, args.replicas)
-            variants, labels = [o for _, _, o in trip], [(p, v) for p, v, _ in trip]
-        else:
-            angles = _floats(args.angles, "--angles") if args.angles else list(ANGLES)
-            widths = (_floats(args.widths, "--widths") if args.widths else
-                      list(WIDTHS) if args.study == "silos" else [0.04, 0.06])
-            variants = silo_variants(angles, widths, args.replicas)
-        rows = run_sweep(args.case, variants, out, common=args.overrides, workers=args.workers,
-                         threads=args.threads, chart="silo/discharge_duration")
-        if args.study == "silos":
-            files = silos_study(rows, out, d, base.silo.depth)
-        elif args.study == "clogging":
-            files = clogging_study(rows, out, d)
-        else:
-            files = sensitivity_study(rows, labels, out, base_values(base))
+        files, rows = study(args)
     except CaseError as e:
         print(f"cfddem: error: {e}", file=sys.stderr)
         return 2
-    print("silo_prisms: " + ", ".join(str(p) for p in files))
+    print(f"{prog}: " + ", ".join(str(p) for p in files))
     return 0 if all(r.get("status") in ("done", "skipped") for r in rows) else 3
+
+
+def load_study_case(args):
+    """The study's case (``args.case`` with ``args.overrides``), refused unless a silo."""
+    from .config import load_case
+
+    base = load_case(args.case, overrides=args.overrides)
+    if base.geometry.type != "silo":
+        raise CaseError("geometry.type", f"{base.geometry.type!r}: the study needs a silo case")
+    return base
+
+
+def _study(args) -> tuple[list, list[dict]]:
+    """Run the study of the parsed ``args``: (files written, sweep rows)."""
+    from .sweep import run_sweep
+
+    base = load_study_case(args)
+    out = Path(args.out).resolve() if args.out else Path(args.case).resolve() / args.study
+    d = base.particles.diameter
+    if args.study == "sensitivity":
+        trip = sensitivity_variants(base, args.replicas)
+        variants, labels = [o for _, _, o in trip], [(p, v) for p, v, _ in trip]
+    else:
+        angles = _floats(args.angles, "--angles") if args.angles else list(ANGLES)
+        widths = (_floats(args.widths, "--widths") if args.widths else
+                  list(WIDTHS) if args.study == "silos" else [0.04, 0.06])
+        variants = silo_variants(angles, widths, args.replicas)
+    rows = run_sweep(args.case, variants, out, common=args.overrides, workers=args.workers,
+                     threads=args.threads, chart="silo/discharge_duration")
+    if args.study == "silos":
+        files = silos_study(rows, out, d, base.silo.depth)
+    elif args.study == "clogging":
+        files = clogging_study(rows, out, d)
+    else:
+        files = sensitivity_study(rows, labels, out, base_values(base))
+    return files, rows
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m cfddem.silo_prisms", description=__doc__.split("\n\n")[0])
+    ap.add_argument("study", choices=("silos", "clogging", "sensitivity"))
+    ap.add_argument("--replicas", type=int, default=1, help="fills per silo or variant (particles.seed 1..N)")
+    ap.add_argument("--angles", help="hopper angles (deg from the horizontal, 0 flat), comma-separated")
+    ap.add_argument("--widths", help="outlet widths (m), comma-separated")
+    add_study_arguments(ap, CASE)
+    return run_study("silo_prisms", _study, ap.parse_args(argv))
 
 
 if __name__ == "__main__":

@@ -554,13 +554,16 @@ def default_grid(system, width: float, cutoff: float):
     return lo, hi
 
 
-def vertical_profile(fields: CoarseFields, system, up_axis: int, up: float) -> dict:
+def vertical_profile(fields: CoarseFields, system, up_axis: int, up: float, base: float | None = None) -> dict:
     """Cross-section averages against height: the integral over the horizontal cells divided by
     the bodies' horizontal extent W x T (centres +- radius; the period on periodic axes), so
     that a grid wider than the bed loses nothing.  Returns height (up from the lowest body
-    surface), density, vertical pressure -sigma_vv (Pa, compression positive), W, T (the first
-    and second horizontal axes), the axes, the bed's bulk density rho_b (mean density over the
-    middle half of the bed) and the equivalent flat fill height H = M / (rho_b W T)."""
+    surface), density, vertical pressure -sigma_vv (Pa, compression positive), ``lateral``: the
+    two horizontal normal pressures -sigma_aa (the same average) along the first and second
+    horizontal axes, W, T (the extents along those axes), the axes, the bed's bulk density rho_b (mean density over the
+    middle half of the bed) and the equivalent flat fill height H = M / (rho_b W T).  ``base``:
+    the level heights are measured from (up times the coordinate; default the lowest body
+    surface), e.g. a silo's floor below which bodies rest in the outlet."""
     hz = [a for a in range(3) if a != up_axis]
     ext = []
     for a in hz:
@@ -574,17 +577,22 @@ def vertical_profile(fields: CoarseFields, system, up_axis: int, up: float) -> d
     svv = np.moveaxis(fields.stress[..., up_axis, up_axis], up_axis, 0).reshape(fields.shape[up_axis], -1).sum(axis=1)
     dens *= area_cell / (W * T)
     pv = -svv * area_cell / (W * T)
+    ph = [-np.moveaxis(fields.stress[..., a, a], up_axis, 0).reshape(fields.shape[up_axis], -1).sum(axis=1)
+          * area_cell / (W * T) for a in hz]
     z = fields.centres(up_axis)
-    base = np.min(up * system.pos[:, up_axis] - system.radius)
+    if base is None:
+        base = np.min(up * system.pos[:, up_axis] - system.radius)
     h = up * z - base
     order = np.argsort(h)
     h, dens, pv = h[order], dens[order], pv[order]
+    ph = [q[order] for q in ph]
     M = fields.totals["mass"]
     bed = dens > 0.5 * dens.max()
     H0 = float(h[bed].max()) if bed.any() else 0.0
     mid = bed & (h > 0.25 * H0) & (h < 0.75 * H0)
     rho_b = float(dens[mid].mean()) if mid.any() else float("nan")
-    return dict(height=h, density=dens, pressure=pv, W=W, T=T, axes=hz, rho_b=rho_b, H=M / (rho_b * W * T))
+    return dict(height=h, density=dens, pressure=pv, lateral=ph, W=W, T=T, axes=hz, rho_b=rho_b,
+                H=M / (rho_b * W * T))
 
 
 def plot_vertical_stress(prof: dict, path, janssen_curve=None, title: str = "") -> None:

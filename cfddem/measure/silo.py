@@ -288,3 +288,158 @@ def centreline_speeds(field: VelocityField, xc: float, heights) -> np.ndarray:
         return np.zeros(0)
     cs = channel_boundary(field.mean()[1], field.x, xc)["centre_speed"]
     return np.interp(heights, field.y, cs, left=math.nan, right=math.nan)
+
+
+# ----------------------------------------------------------------------------- chapter-5 profiles
+def rows_at_heights(y, values, heights) -> np.ndarray:
+    """The rows of a field ``values`` (ny, nx) on row centres ``y`` at each of ``heights``, by
+    linear interpolation in y between the two rows around each height (NaN where either of them
+    is NaN in that column, or the height lies outside the row centres).  Returns (n_heights, nx)."""
+    y = np.asarray(y, float)
+    v = np.asarray(values, float)
+    h = np.atleast_1d(np.asarray(heights, float))
+    out = np.full((len(h), v.shape[1]), np.nan)
+    for k, z in enumerate(h):
+        if not (y[0] <= z <= y[-1]) or len(y) < 2:
+            continue
+        j = int(min(np.searchsorted(y, z, side="right") - 1, len(y) - 2))
+        f = (z - y[j]) / (y[j + 1] - y[j])
+        out[k] = v[j] if f == 0.0 else v[j + 1] if f == 1.0 else (1.0 - f) * v[j] + f * v[j + 1]
+    return out
+
+
+def kinematic_profile(x, v0: float, B: float, z: float):
+    """The kinematic model's downward speed v(x) = v0 exp(-x^2 / (4 B z)) at the distance x
+    from the centreline, height z above the outlet (Nedderman & Tuzun 1979)."""
+    return v0 * np.exp(-np.asarray(x, float) ** 2 / (4.0 * B * z))
+
+
+def fit_kinematic_B(x, speed, z: float, xc: float, max_rel_err: float = 0.5, min_points: int = 4,
+                    min_drop: float = 0.25) -> dict:
+    """Fit v(x) = v0 exp(-(x - xc)^2 / (4 B z)) to a downward-speed profile ``speed`` (m/s,
+    positive down) across the width at height ``z`` (m above the outlet) by
+    ``scipy.optimize.curve_fit`` (parameters v0 and B, m).  Returns B, B_err (one standard
+    error), v0, v0_err, the number of points and ``reason``: "" for a meaningful fit, otherwise
+    why B is NaN: fewer than ``min_points`` finite points, no downward flow on the centreline
+    (largest speed <= 0), z <= 0, the fit failed, its relative error exceeds ``max_rel_err`` (a
+    profile too noisy to fix a width), or the fitted curve falls by less than ``min_drop`` of v0
+    between the centre and the farthest point (a profile too flat: e.g. plug flow across the
+    whole silo, where any large B fits)."""
+    from scipy.optimize import curve_fit
+
+    x = np.asarray(x, float) - xc
+    s = np.asarray(speed, float)
+    ok = np.isfinite(x) & np.isfinite(s)
+    x, s = x[ok], s[ok]
+    out = {"B": math.nan, "B_err": math.nan, "v0": math.nan, "v0_err": math.nan, "n_points": int(len(x)),
+           "reason": ""}
+    if len(x) < min_points:
+        out["reason"] = f"{len(x)} points (fewer than {min_points})"
+        return out
+    if not z > 0:
+        out["reason"] = f"height {z:g} m is not above the outlet"
+        return out
+    v0 = float(s[np.argmin(np.abs(x))])
+    if not s.max() > 0 or not v0 > 0:
+        out["reason"] = "no downward flow at the centreline"
+        return out
+    # start: the width where the profile falls to half its centre value, w_half^2 = 4 B z ln 2
+    above = np.abs(x[s >= 0.5 * v0])
+    w_half = max(float(above.max()) if len(above) else 0.0, float(np.min(np.abs(np.diff(np.sort(x))))) or 1e-3)
+    B0 = w_half ** 2 / (4.0 * z * math.log(2.0))
+    try:
+        popt, pcov = curve_fit(lambda xx, a, b: kinematic_profile(xx, a, b, z), x, s, p0=(v0, B0),
+                               bounds=([0.0, 1e-12], [np.inf, np.inf]), maxfev=20000)
+    except (RuntimeError, ValueError) as e:
+        out["reason"] = f"fit failed ({e})"
+        return out
+    err = np.sqrt(np.diag(pcov)) if np.all(np.isfinite(pcov)) else np.array([math.nan, math.nan])
+    out.update(v0=float(popt[0]), v0_err=float(err[0]))
+    drop = 1.0 - math.exp(-float(np.max(x ** 2)) / (4.0 * popt[1] * z))
+    if drop < min_drop:
+        out["reason"] = (f"the fitted profile falls by only {drop:.0%} across the width (below {min_drop:.0%}): "
+                         f"too flat to fix B (B = {popt[1]:.3g} m)")
+        return out
+    if not (np.isfinite(err[1]) and err[1] <= max_rel_err * popt[1]):
+        out["reason"] = (f"relative error of B {err[1] / popt[1]:.2g} above {max_rel_err:g} (B = {popt[1]:.3g} m)"
+                         if np.isfinite(err[1]) else "no error estimate (singular fit)")
+        return out
+    out.update(B=float(popt[1]), B_err=float(err[1]))
+    return out
+
+
+def centreline_velocity(pos, vel, xc: float, heights, half_x: float, half_y: float) -> np.ndarray:
+    """Instantaneous mean vertical velocity v_y (m/s, up positive) of the particles whose
+    centres lie within ``half_x`` of the centreline x = ``xc`` and within ``half_y`` of each of
+    ``heights`` (full depth); NaN where no centre lies in the box."""
+    pos = np.asarray(pos, float).reshape(-1, 3)
+    vel = np.asarray(vel, float).reshape(-1, 3)
+    h = np.atleast_1d(np.asarray(heights, float))
+    near = np.abs(pos[:, 0] - xc) < half_x
+    out = np.full(len(h), np.nan)
+    for k, z in enumerate(h):
+        sel = near & (np.abs(pos[:, 1] - z) < half_y)
+        if sel.any():
+            out[k] = float(vel[sel, 1].mean())
+    return out
+
+
+def bed_top(field: VelocityField, share: float = 0.25) -> float:
+    """Top of the highest row of a time-averaged field in which every cell holds at least
+    ``share`` of the median particle-sample count of the occupied cells (NaN when none): the
+    bed that stayed in place over the averaging window, without the rows of the free surface
+    that the particles left during it (there the cells at the walls or over the crater are
+    empty part of the time and a channel boundary would be found in the empty cells)."""
+    c = field.count
+    occ = c[c > 0]
+    if not occ.size:
+        return math.nan
+    full = np.nonzero((c >= share * float(np.median(occ))).all(axis=1))[0]
+    return float(field.y[full[-1]] + 0.5 * field.dy) if len(full) else math.nan
+
+
+def profile_measurements(field_all: VelocityField, field_front: VelocityField, xc: float, heights,
+                         fraction: float = 0.1) -> dict:
+    """The chapter-5 profile measurements of two time-averaged fields over the same grid (the
+    depth average and the layer at the front wall): at each height (m above the outlet) the
+    vertical velocity across the width (:func:`rows_at_heights` of v_y), the kinematic model's B
+    fitted to the downward speed (:func:`fit_kinematic_B`, NaN where not meaningful, with the
+    reason), the flow-channel boundary and width there (:func:`channel_boundary` of the depth
+    average at ``fraction`` of the centreline speed), and the flow pattern of the depth-averaged
+    field (:func:`cfddem.measure.blending.classify_flow_pattern` at the same fraction, over the
+    rows up to :func:`bed_top`; "" when it cannot classify, e.g. no sample)."""
+    from .blending import classify_flow_pattern
+
+    h = np.asarray(heights, float)
+    x, y = field_all.x, field_all.y
+    out: dict = {"x": x, "y": y, "heights": h, "n_samples": np.int64(field_all.n_samples)}
+    reasons = []
+    for name, fld in (("depth", field_all), ("front", field_front)):
+        vy = fld.mean()[1]
+        prof = rows_at_heights(y, vy, h)
+        fits = [fit_kinematic_B(x, -prof[k], float(z), xc) for k, z in enumerate(h)]
+        out[name] = {"vy_field": vy, "count": fld.count, "vy": prof,
+                     "B": np.array([f["B"] for f in fits]), "B_err": np.array([f["B_err"] for f in fits]),
+                     "v0": np.array([f["v0"] for f in fits])}
+        reasons += [f"{name} {z * 1e3:g} mm: {f['reason']}" for z, f in zip(h, fits) if f["reason"]]
+    vy = field_all.mean()[1]
+    cb = channel_boundary(vy, x, xc, fraction)
+    xl = rows_at_heights(y, cb["x_left"][:, None], h)[:, 0]
+    xr = rows_at_heights(y, cb["x_right"][:, None], h)[:, 0]
+    out["channel"] = {"x_left": xl, "x_right": xr, "width": xr - xl, "fraction": float(fraction)}
+    pattern, details = "", {}
+    H = bed_top(field_all)
+    if field_all.n_samples and np.isfinite(vy).any() and math.isfinite(H):
+        try:
+            fp = classify_flow_pattern(x, y, vy, fill_height=H, fraction=fraction, xc=xc)
+            pattern = fp["pattern"]
+            details = {k: fp[k] for k in ("h_t", "h_t_over_H", "fill_height", "stagnant_fraction")}
+        except ValueError as e:
+            reasons.append(f"flow pattern: {e}")
+    out["flow_pattern"] = pattern
+    out["flow_pattern_details"] = details
+    out["@attrs"] = {"B_notes": "; ".join(reasons) or "every fit meaningful",
+                     "B": "v(x) = v0 exp(-(x - xc)^2 / (4 B z)), z = height above the outlet (m), B in m; "
+                          "NaN where the fit is not meaningful (B_notes)",
+                     "vy": "time-averaged vertical velocity (m/s, up positive) across the width at each height"}
+    return out

@@ -141,6 +141,9 @@ def check_blender_case(r: dict) -> None:
             raise CaseError(f"silo.{k}", f"leave it 0 in a blender: {why}")
     if s["walls"] != "analytic":
         raise CaseError("silo.walls", "the blender builds its own container and channel ('analytic')")
+    if s["depth_boundary"] != "walls":
+        raise CaseError("silo.depth_boundary", "the blender is periodic in y (recirculation) and keeps its front and "
+                                               "back walls ('walls')")
     geo = BlenderGeometry(r)
     L, ds = geo.L, geo.d_site
     if L < 2 * ds:

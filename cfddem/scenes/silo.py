@@ -81,7 +81,8 @@ import math
 import numpy as np
 
 from ..errors import CaseError
-from ..measure.silo import VelocityField, bulk_density, channel_boundary, fit_mass_flow, surface_height
+from ..measure.silo import (VelocityField, bulk_density, centreline_velocity, channel_boundary, fit_mass_flow,
+                            profile_measurements, surface_height)
 from ..particles.contact import check_contact_values
 from . import Scene
 from .silo_internals import GROUP as INTERNALS_GROUP, KEYS as INTERNALS_KEYS, WALL_NAMES as INTERNALS_WALLS
@@ -250,6 +251,29 @@ SILO_KEYS = {
                         "/measurements/silo/outlet records (docs/outputs.md)", lo=0.0),
     "channel_fraction": _f(0.1, "-", "flow-channel boundary: where the downward speed falls below this fraction "
                            "of the centreline speed", lo=0.0, lo_open=True, hi=1.0, hi_open=True),
+    "depth_boundary": Key("str", "walls", "-", "'walls': front and back walls at z = 0 and z = depth "
+                          "([silo.front_back]); 'periodic': no front and back walls, the depth is periodic over "
+                          "z in [0, depth) (a slice of an infinitely deep silo; [silo.front_back] is then unused)",
+                          choices=("walls", "periodic")),
+    "profile_heights": Key("floats", [0.02, 0.04, 0.08, 0.12, 0.16], "m", "heights above the outlet of the "
+                           "vertical-velocity profiles across the width, the kinematic-model fits (B) and the "
+                           "centreline-velocity series (/measurements/silo/profiles; [] for none)", lo=0.0, lo_open=True),
+    "profile_window": Key("floats", [0.5, 0.7], "s", "time window after the gate opening over which the "
+                          "profiles' velocity field is averaged (sampled every settle_check_interval)", length=2,
+                          lo=0.0),
+    "profile_cell": _nonneg(0.0, "m", "cell size (x and y) of the profiles' time-averaged velocity fields, "
+                            "depth-averaged and in the layer at the front wall (0: d)"),
+    "stress_profile": Key("bool", False, "-", "at the gate opening (the end of the fill), coarse-grain the "
+                          "vertical stress (cfddem.measure.coarse) and store its cross-section average against "
+                          "height with Janssen's curve (/measurements/silo/stress)"),
+    "stress_grid": Key("floats", [0.006, 0.004, 0.006], "m", "stress_profile: coarse-graining cell sizes along "
+                       "x, y (vertical), z (the thesis's 6 x 4 x 6 mm grid, 4 mm taken vertical)", length=3,
+                       lo=0.0, lo_open=True),
+    "stress_width": _nonneg(0.0, "m", "stress_profile: standard deviation of the Gaussian kernel (0: 3 particle "
+                            "radii, the thesis's)"),
+    "bulk_friction": _f(0.37, "-", "stress_profile: bulk friction tan(phi) for Janssen's K = (1 - sin phi) / "
+                        "(1 + sin phi); 0.37 is the shear cell's with the thesis's parameters (mu 0.35, mu_r 0.1, "
+                        "docs/shear-cell.md)", lo=0.0, lo_open=True),
     "front_back": wall_override("front and back walls"),
     "sides": wall_override("side walls"),
     "bottom": wall_override("bottom plates or hopper walls, and the slot lips"),
@@ -309,6 +333,23 @@ def check_silo_case(r: dict) -> None:
             if given:
                 raise CaseError(f"silo.{grp}.{given[0]}", "with silo.walls = 'mesh' the container's contact keys "
                                                           "belong to its [[geometry.walls]] mesh walls")
+    if s["depth_boundary"] == "periodic":
+        if s["walls"] == "mesh":
+            raise CaseError("silo.depth_boundary", "'periodic' replaces the front and back walls of the analytic "
+                                                   "silo: not with silo.walls = 'mesh' (the meshes are the container)")
+        if r["gas"]["enabled"]:
+            raise CaseError("silo.depth_boundary", "'periodic' is not for a run with gas (the gas domain has "
+                                                   "no-slip front and back walls)")
+        need = 2.0 * (d + (r["particles"]["skin"] or 0.3 * d))
+        if s["depth"] < need:
+            raise CaseError("silo.depth", f"{s['depth']:g} m is too shallow for a periodic depth: the neighbour "
+                                          f"search needs at least 2 (2 R + skin) = {need:.4g} m")
+    hs = s["profile_heights"]
+    if any(b <= a for a, b in zip(hs, hs[1:])):
+        raise CaseError("silo.profile_heights", f"{hs!r}: give increasing heights")
+    pw = s["profile_window"]
+    if not pw[0] < pw[1]:
+        raise CaseError("silo.profile_window", f"{pw!r}: needs start < end (s after the gate opening)")
     check_internals(r, d, d_site, s["height"] or None)
     if s["height"]:
         g = SiloGeometry(s, d, r["particles"]["seed"], r["particles"]["clump"], r["particles"]["density"],
@@ -350,8 +391,9 @@ def silo_walls(case, container: bool | None = None, silo: dict | None = None):
 
     yc = 0.5 * (ybot + H + e)
     hy = 0.5 * (H + e - ybot)
-    add("front", (xc, yc, 0.0), ez, ex, 0.5 * W + e, hy)
-    add("back", (xc, yc, L), -ez, ex, 0.5 * W + e, hy)
+    if s["depth_boundary"] != "periodic":  # periodic depth: no front and back walls
+        add("front", (xc, yc, 0.0), ez, ex, 0.5 * W + e, hy)
+        add("back", (xc, yc, L), -ez, ex, 0.5 * W + e, hy)
     ys = g.y_h - e
     add("left", (0.0, 0.5 * (ys + H), 0.5 * L), ex, ey, 0.5 * (H - ys), 0.5 * L + e)
     add("right", (W, 0.5 * (ys + H), 0.5 * L), -ex, ey, 0.5 * (H - ys), 0.5 * L + e)
@@ -400,6 +442,8 @@ def container_meshes(case, max_edge: float = 0.0) -> dict[str, tuple[np.ndarray,
         parts[grp].append(grid_surface(c[0], c[1] - c[0], c[3] - c[0], nu, nv))
     out = {}
     for grp, lst in parts.items():
+        if not lst:  # (front_back with a periodic depth)
+            continue
         offs = np.cumsum([0] + [len(V) for V, _ in lst])
         out[grp] = (np.concatenate([V for V, _ in lst]), np.concatenate([F + o for (_, F), o in zip(lst, offs)]))
     return out
@@ -585,12 +629,22 @@ class SiloScene(Scene):
         return silo_walls(case)
 
     @classmethod
+    def periodic(cls, case) -> tuple:
+        """``silo.depth_boundary = "periodic"``: z periodic over [0, depth)."""
+        s = case.resolved["silo"]
+        return (None, None, (0.0, float(s["depth"]))) if s["depth_boundary"] == "periodic" else (None, None, None)
+
+    @classmethod
     def describe(cls, case) -> list[str]:
         """With ``silo.walls = "mesh"``: whether the mesh walls' bounds cover the silo's box; the
         blender's internals and fill (:func:`~cfddem.scenes.silo_internals.describe_fill`)."""
         from .silo_internals import describe_fill
 
-        return ([mesh_cover_line(case)] if case.resolved["silo"]["walls"] == "mesh" else []) + describe_fill(case)
+        s = case.resolved["silo"]
+        per = ([f"silo depth: periodic along z over 0..{s['depth']:g} m, no front and back walls"
+                + (" ([silo.front_back] is set but unused)" if any(v is not None for v in s["front_back"].values())
+                   else "")] if s["depth_boundary"] == "periodic" else [])
+        return ([mesh_cover_line(case)] if s["walls"] == "mesh" else []) + per + describe_fill(case)
 
     @classmethod
     def has_particles(cls, case) -> bool:
@@ -639,6 +693,15 @@ class SiloScene(Scene):
         self.ended = ""
         cell = s["field_cell"] or 2 * self.g.d
         self.field = VelocityField(0.0, self.g.W, -self.g.lip, self.g.H, cell)
+        # the chapter-5 profiles: fields over profile_window (depth average, front-wall layer) and
+        # the centreline series at profile_heights
+        self.heights = np.asarray(s["profile_heights"], float)
+        pcell = s["profile_cell"] or self.g.d
+        self.win_all = VelocityField(0.0, self.g.W, -self.g.lip, self.g.H, pcell)
+        self.win_front = VelocityField(0.0, self.g.W, -self.g.lip, self.g.H, pcell)
+        self.cl_t: list[float] = []
+        self.cl_v: list[np.ndarray] = []
+        self.stress: dict = {}
         self.outlet = None
         if self.case.gas.enabled:
             from ..measure.outlet_budget import OutletBudget
@@ -793,6 +856,7 @@ class SiloScene(Scene):
             return
         self.rec_t.append(t)
         self.rec_m.append(sim.counters["mass_out"])
+        self._sample_profiles(t)
         if self.ended:
             return
         if sys_.n == 0:
@@ -817,10 +881,85 @@ class SiloScene(Scene):
                               f"no particle over the outlet; {sys_.n} remain in stagnant zones")
                 sim.log.info("silo %s", self.ended)
 
+    def _sample_profiles(self, t: float) -> None:
+        """At a check after the gate opening: the centreline series at the profile heights and,
+        inside profile_window, the two window fields (all particles; centres within d of the
+        front wall, z < d)."""
+        if not len(self.heights):
+            return
+        sys_ = self.sim.system
+        d = self.g.d
+        since = t - self.gate_open_time
+        self.cl_t.append(since)
+        self.cl_v.append(centreline_velocity(sys_.pos, sys_.vel, self.g.xc, self.heights, d, d) if sys_.n
+                         else np.full(len(self.heights), np.nan))
+        lo, hi = self.s["profile_window"]
+        half = 0.5 * self.sim.dt
+        if sys_.n and lo - half <= since <= hi + half:
+            self.win_all.sample(sys_.pos, sys_.vel)
+            front = sys_.pos[:, 2] < d
+            self.win_front.sample(sys_.pos[front], sys_.vel[front])
+
+    def _stress_profile(self) -> dict:
+        """The vertical stress at the end of the fill: coarse-grained (:func:`cfddem.measure.coarse.
+        coarse_grain`, Gaussian of ``stress_width``, cells ``stress_grid``, the grid the bodies'
+        extent widened by the kernel's cutoff), averaged over the cross-section against the
+        height above the floor y = 0 (:func:`~cfddem.measure.coarse.vertical_profile`), with
+        Janssen's curve for the side walls' and front/back walls' friction (0 with a periodic
+        depth) and K from ``bulk_friction``."""
+        from ..measure.coarse import coarse_grain, default_grid, janssen, lateral_pressure_ratio, vertical_profile
+
+        sys_ = self.sim.system
+        s = self.s
+        width = s["stress_width"] or 1.5 * self.g.d
+        lo, hi = default_grid(sys_, width, 3.0)
+        f = coarse_grain(sys_, lo, hi, np.asarray(s["stress_grid"], float), width, cutoff=3.0,
+                         solid_density=self.case.particles.density)
+        prof = vertical_profile(f, sys_, 1, 1.0, base=0.0)
+        pw = self.case.resolved["contact"]["particle_wall"]
+        mu_side = s["sides"]["mu"] if s["sides"]["mu"] is not None else pw["mu"]
+        mu_front = 0.0 if s["depth_boundary"] == "periodic" else (
+            s["front_back"]["mu"] if s["front_back"]["mu"] is not None else pw["mu"])
+        K = lateral_pressure_ratio(s["bulk_friction"])
+        g = self.case.gravity.g
+        W, T, H = prof["W"], prof["T"], prof["H"]
+        zc = W * T / (2.0 * K * (mu_side * T + mu_front * W)) if mu_side * T + mu_front * W > 0 else math.inf
+        y = prof["height"]
+        hydro = np.where(y < 0.0, np.nan, np.where(y < H, prof["rho_b"] * g * (H - y), 0.0))
+        jz = (np.where(y < 0.0, np.nan, janssen(y, H, prof["rho_b"] * g, W, T, K, mu_side, mu_front))
+              if math.isfinite(zc) else hydro)
+        px, pz = prof["lateral"]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            kx = np.where(prof["pressure"] > 0, px / prof["pressure"], np.nan)
+            kz = np.where(prof["pressure"] > 0, pz / prof["pressure"], np.nan)
+        return {"y": y, "pressure": prof["pressure"], "density": prof["density"], "janssen": jz, "hydrostatic": hydro,
+                "pressure_x": px, "pressure_z": pz, "K_x": kx, "K_z": kz,
+                "rho_b": prof["rho_b"], "H": H, "W": W, "T": T, "K": K, "z_c": zc, "mu_side": float(mu_side),
+                "mu_front": float(mu_front), "bulk_friction": s["bulk_friction"], "width": width,
+                "spacing": f.spacing, "time": f.time}
+
+    STRESS_ATTRS = {
+        "pressure": "vertical pressure -sigma_yy (Pa, compression positive), integral over the horizontal cells "
+                    "/ (W T), at the gate opening",
+        "y": "cell-centre height above the floor y = 0 (m); janssen and hydrostatic NaN below it",
+        "pressure_x": "-sigma_xx (Pa), the same average (against the side walls); pressure_z: -sigma_zz (against the "
+                      "front and back walls); K_x, K_z: their ratios to the vertical pressure (the lateral pressure "
+                      "ratios Janssen's K stands for)",
+        "janssen": "gamma z_c (1 - exp(-(H - y) / z_c)), gamma = rho_b g, z_c = W T / (2 K (mu_side T + mu_front W)), "
+                   "K = (1 - sin phi) / (1 + sin phi), tan phi = bulk_friction; H = M / (rho_b W T)"}
+
     def _open_gate(self, t: float, ke: float) -> None:
         sys_ = self.sim.system
         d = self.g.d
         self.fill_measure(sys_.pos, sys_.mass)
+        if self.s["stress_profile"]:
+            self.stress = self._stress_profile()
+            st = self.stress
+            y15 = 0.15 * st["H"]
+            self.sim.log.info("silo: vertical stress at the end of the fill, 0.15 H = %.4g m above the floor: %.4g Pa "
+                              "(Janssen %.4g Pa, z_c = %.4g m, K = %.3g)", y15, float(np.interp(y15, st["y"],
+                                                                                                st["pressure"])),
+                              float(np.interp(y15, st["y"], st["janssen"])), st["z_c"], st["K"])
         self.fill["kinetic_energy_per_particle"] = ke
         sys_.set_wall_active("gate", False)
         if self.s["frictionless_fill"] or self.s["fill_friction"] >= 0.0:
@@ -835,6 +974,7 @@ class SiloScene(Scene):
         self.k_field = 0
         self.rec_t.append(t)
         self.rec_m.append(self.sim.counters["mass_out"])
+        self._sample_profiles(t)
         self.sim.log.info("silo: gate opened at t = %.4g s (kinetic energy per particle %.3g J); fill height "
                           "%.4g m, bulk density %.1f kg/m3 (%d particles in the box x %.3g..%.3g m, y %.3g..%.3g m, "
                           "full depth)", t, ke, self.fill["fill_height"], self.fill["bulk_density"],
@@ -920,6 +1060,19 @@ class SiloScene(Scene):
             silo.update(self.probe.measurements())
         if self.outlet is not None:
             silo["outlet"] = self.outlet_measurements(fit)
+        if len(self.heights):
+            pm = profile_measurements(self.win_all, self.win_front, g.xc, self.heights, self.s["channel_fraction"])
+            pm["window"] = np.asarray(self.s["profile_window"], float)
+            pm["@attrs"]["window"] = "s after the gate opening"
+            silo["profiles"] = pm
+            silo["flow_pattern"] = pm["flow_pattern"]
+            silo["centreline_series"] = {
+                "time": np.array(self.cl_t, float), "heights": self.heights,
+                "vy": np.array(self.cl_v, float).reshape(len(self.cl_t), len(self.heights)),
+                "@attrs": {"time": "s after the gate opening", "vy": "mean v_y (m/s, up positive) of the centres "
+                           "within d of the centreline and of each height, full depth, at each check"}}
+        if self.stress:
+            silo["stress"] = {**self.stress, "@attrs": self.STRESS_ATTRS}
         arrays = {"mass_flow_rate": fit["rate"], "bulk_density": self.fill["bulk_density"],
                   "clogged": np.int64(1 if self.clogged else 0), "silo": silo,
                   "@attrs:mass_flow_rate": {"unit": "kg/s"}, "@attrs:bulk_density": {"unit": "kg/m3"},
@@ -953,6 +1106,10 @@ class SiloScene(Scene):
                 "n_inserted": np.int64(self.n_inserted), "layers_done": np.int64(self.layers_done),
                 "spheres_inserted": np.int64(self.spheres_inserted), "bodies_out": np.int64(self.bodies_out),
                 "fill": {k: (np.asarray(v) if not isinstance(v, (int, float)) else v) for k, v in self.fill.items()},
+                "win_all": self.win_all.get_state(), "win_front": self.win_front.get_state(),
+                "cl_t": np.array(self.cl_t, float),
+                "cl_v": np.array(self.cl_v, float).reshape(len(self.cl_t), len(self.heights)),
+                **({"stress": self.stress} if self.stress else {}),
                 **({"probe": self.probe.get_state()} if self.probe else {}),
                 **({"outlet": self.outlet.get_state()} if self.outlet is not None else {})}
 
@@ -971,6 +1128,13 @@ class SiloScene(Scene):
         self.bodies_out = int(d.get("bodies_out", 0))
         self.layers_done = int(d["layers_done"])
         self.field.set_state(d["field"])
+        if "win_all" in d:
+            self.win_all.set_state(d["win_all"])
+            self.win_front.set_state(d["win_front"])
+            self.cl_t = [float(x) for x in np.asarray(d["cl_t"]).ravel()]
+            self.cl_v = [np.asarray(v, float) for v in np.asarray(d["cl_v"], float).reshape(len(self.cl_t), -1)]
+        if "stress" in d:
+            self.stress = {k: v for k, v in d["stress"].items()}
         if not self.gate_open:
             self._fill_friction()
         if self.probe:

@@ -1,0 +1,328 @@
+"""The flat-bottomed planar-silo studies of the blending thesis's chapter 5 (silo-studies.md §2,
+docs/silo-thesis.md) on ``cases/silo_thesis_small``:
+
+    python -m cfddem.silo_thesis front-back  [--values 0,0.2,0.3,0.5,0.75,1] [--no-periodic] ...
+    python -m cfddem.silo_thesis friction    [--mu 0.15,0.57] [--mu-r 0,0.1,0.2] ...
+    python -m cfddem.silo_thesis restitution [--values 1e-4,0.6,1] ...
+    (each also takes --case CASE --out DIR --set K=V ... --workers N --threads T)
+
+* ``front-back``: the friction of the front and back walls (``silo.front_back.mu``) over the
+  values, and the variant with a periodic depth instead of those walls
+  (``silo.depth_boundary = "periodic"``);
+* ``friction``: particle-particle sliding friction (``contact.particle_particle.mu``) times
+  rolling friction (``contact.particle_particle.mu_r``);
+* ``restitution``: the restitution coefficient of every contact (``contact.particle_particle.e_n``
+  and ``contact.particle_wall.e_n`` together).
+
+Each study is a sweep (:func:`cfddem.sweep.run_sweep`: Dask, one run folder per variant,
+finished runs reused) into ``--out`` (default ``CASE/<study>``).  From each run's results.h5
+(the silo scene's ``/measurements``: docs/silo.md) it writes ``<study>.csv`` and ``<study>.md``
+(per variant: mass flow rate, bulk density, flow pattern, the kinematic model's B at each profile
+height, the flow-channel width there, the vertical stress on the floor region against Janssen's,
+status and wall time), ``<study>_profiles.png`` (the time-averaged vertical-velocity profiles
+across the width at each height, depth-averaged and in the layer at the front wall, one line per
+variant) and ``<study>.png`` (B and the channel width against height, the centreline velocity
+against time, the flow rate against the swept value, the vertical stress at the end of the fill
+with Janssen's curve).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .errors import CaseError
+from .silo_prisms import (PP, PW, _floats, _plt, _save, add_study_arguments, load_study_case, run_study,
+                          write_table)
+
+CASE = Path(__file__).resolve().parent.parent / "cases" / "silo_thesis_small"
+STUDIES = ("front-back", "friction", "restitution")
+DEFAULTS = {"front-back": [0.0, 0.2, 0.3, 0.5, 0.75, 1.0], "mu": [0.15, 0.57], "mu_r": [0.0, 0.1, 0.2],
+            "restitution": [1e-4, 0.6, 1.0]}
+
+
+def study_variants(study: str, values=None, periodic: bool = True, mu=None, mu_r=None) -> list[dict]:
+    """The variants of a study: dicts with ``label`` (legend text), ``group`` (one line per group
+    in the flow-rate chart), ``x`` (the swept value on that chart's axis; NaN for the periodic
+    variant) and ``overrides`` (the case keys)."""
+    if study == "front-back":
+        out = [{"label": f"front/back mu {v:g}", "group": "walls", "x": float(v),
+                "overrides": {"silo.front_back.mu": float(v)}} for v in (values or DEFAULTS["front-back"])]
+        if periodic:
+            out.append({"label": "periodic depth", "group": "periodic", "x": math.nan,
+                        "overrides": {"silo.depth_boundary": "periodic"}})
+        return out
+    if study == "friction":
+        return [{"label": f"mu {m:g}, mu_r {r:g}", "group": f"mu_pp {m:g}", "x": float(r),
+                 "overrides": {PP + "mu": float(m), PP + "mu_r": float(r)}}
+                for m in (mu or DEFAULTS["mu"]) for r in (mu_r or DEFAULTS["mu_r"])]
+    if study == "restitution":
+        return [{"label": f"e {e:g}", "group": "e", "x": float(e), "overrides": {PP + "e_n": float(e), PW + "e_n": float(e)}}
+                for e in (values or DEFAULTS["restitution"])]
+    raise CaseError("study", f"{study!r}: one of {', '.join(STUDIES)}")
+
+
+X_LABEL = {"front-back": "front/back wall friction mu", "friction": "rolling friction mu_r (particle-particle)",
+           "restitution": "restitution coefficient e"}
+
+
+def _num(v) -> float:
+    try:
+        return float(np.asarray(v))
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def _text(v) -> str:
+    return v.decode() if isinstance(v, bytes) else str(v) if v is not None else ""
+
+
+def read_variant(row: dict, variant: dict) -> dict:
+    """One table row from a sweep row and its run's results.h5 (NaN and "" where missing)."""
+    from .io.results import read_measurements
+
+    out = {"label": variant["label"], "group": variant["group"], "x": variant["x"],
+           "status": row.get("status", ""), "wall_time": _num(row.get("wall_time", math.nan)), "m": None}
+    h5 = Path(row["out_dir"]) / "results.h5"
+    m = read_measurements(h5) if h5.is_file() else {}
+    s = m.get("silo", {})
+    out.update(flow_rate=_num(m.get("mass_flow_rate")), bulk_density=_num(m.get("bulk_density")),
+               clogged=int(_num(m.get("clogged", 0)) == 1), fill_height=_num(s.get("fill_height")),
+               flow_pattern=_text(s.get("flow_pattern", "")))
+    p = s.get("profiles")
+    if p is not None:
+        out["m"] = s
+        det = p.get("flow_pattern_details", {}) or {}
+        out["h_t_over_H"] = _num(det.get("h_t_over_H", math.nan))
+        for k, z in enumerate(np.asarray(p["heights"], float)):
+            tag = f"{z * 1e3:g}"
+            out[f"B_{tag}"] = float(p["depth"]["B"][k]) * 1e3
+            out[f"B_err_{tag}"] = float(p["depth"]["B_err"][k]) * 1e3
+            out[f"B_front_{tag}"] = float(p["front"]["B"][k]) * 1e3
+            out[f"channel_{tag}"] = float(p["channel"]["width"][k]) * 1e3
+    st = s.get("stress")
+    if st is not None:
+        y, pr, jz, H = (np.asarray(st[k], float) for k in ("y", "pressure", "janssen", "H"))
+        band = (y > 0.1 * H) & (y < 0.2 * H)  # away from the floor's kernel edge
+        out["stress_low"] = float(pr[band].mean()) if band.any() else math.nan
+        out["janssen_low"] = float(jz[band].mean()) if band.any() else math.nan
+        out["z_c"] = _num(st["z_c"])
+        for k in ("K_x", "K_z"):  # the measured lateral pressure ratios (runs from before they were stored: NaN)
+            out[k] = float(np.nanmean(np.asarray(st[k], float)[band])) if k in st and band.any() else math.nan
+    return out
+
+
+def study_table(rows: list[dict], variants: list[dict]) -> list[dict]:
+    return [read_variant(r, v) for r, v in zip(rows, variants)]
+
+
+def _heights(table: list[dict]) -> list[str]:
+    for t in table:
+        if t["m"] is not None:
+            return [f"{z * 1e3:g}" for z in np.asarray(t["m"]["profiles"]["heights"], float)]
+    return []
+
+
+def machine_notes() -> list[str]:
+    """The CPU model and the load average when the tables were written."""
+    cpu = ""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    la = os.getloadavg() if hasattr(os, "getloadavg") else (math.nan,) * 3
+    return [f"machine: {cpu or 'CPU unknown'}, {os.cpu_count()} cores; load average {la[0]:.2f}, {la[1]:.2f}, "
+            f"{la[2]:.2f} (1, 5, 15 min) when the table was written"]
+
+
+def write_study(study: str, table: list[dict], out: Path, notes: list[str]) -> list[Path]:
+    hs = _heights(table)
+    cols = [("label", "variant", ""), ("flow_rate", "flow rate (kg/s)", "{:.4g}"),
+            ("bulk_density", "bulk density (kg/m3)", "{:.4g}"), ("flow_pattern", "flow pattern", ""),
+            ("h_t_over_H", "h_t/H", "{:.2f}")]
+    cols += [(f"B_{h}", f"B at {h} mm (mm)", "{:.3g}") for h in hs]
+    cols += [(f"channel_{h}", f"channel at {h} mm (mm)", "{:.3g}") for h in hs]
+    cols += [("stress_low", "sigma_v 0.1-0.2 H (Pa)", "{:.4g}"), ("janssen_low", "Janssen (Pa)", "{:.4g}"),
+             ("status", "status", ""), ("wall_time", "wall time (s)", "{:.0f}")]
+    extra = [("x", "swept value", ""), ("fill_height", "fill height (m)", ""), ("clogged", "clogged", ""),
+             ("z_c", "Janssen z_c (m)", ""), ("K_x", "K_x measured", ""), ("K_z", "K_z measured", "")]
+    extra += [(f"B_err_{h}", f"B error at {h} mm (mm)", "") for h in hs]
+    extra += [(f"B_front_{h}", f"B front layer at {h} mm (mm)", "") for h in hs]
+    for t in table:
+        for c, _, _ in cols + extra:
+            t.setdefault(c, math.nan)
+    title = f"Silo study '{study}' (thesis chapter 5)"
+    # the CSV with every column; the Markdown table with the main ones
+    write_table(out / study, cols[:-2] + extra + cols[-2:], table, title, notes)
+    short = write_table(out / f"{study}_short", cols, table, title, notes)
+    short[1].replace(out / f"{study}.md")
+    short[0].unlink()
+    files = [out / f"{study}.csv", out / f"{study}.md"]
+    files += plot_study(study, table, out)
+    return files
+
+
+def swept_panel(a, study: str, groups: dict, col: dict, key: str, scale: float, unit: str, ylabel: str,
+                title: str) -> None:
+    """One line per group of ``key`` x ``scale`` against the swept value; a group without one
+    (the periodic depth) as horizontal dashed lines."""
+    for g, ts in groups.items():
+        xs = np.array([t["x"] for t in ts])
+        ys = np.array([t[key] for t in ts]) * scale
+        if np.all(np.isnan(xs)):
+            for y in ys:
+                a.axhline(y, color=col[ts[0]["label"]], ls="--", label=f"{g}: {y:.4g} {unit}")
+        else:
+            a.plot(xs, ys, "o-", label=g)
+    if study == "restitution":
+        a.set_xscale("log")
+    a.set_xlabel(X_LABEL[study])
+    a.set_ylabel(ylabel)
+    a.set_title(title, fontsize=9)
+    a.legend(fontsize=7)
+
+
+def plot_study(study: str, table: list[dict], out: Path) -> list[Path]:
+    """``<study>_profiles.png`` and ``<study>.png`` (module doc)."""
+    plt = _plt()
+    have = [t for t in table if t["m"] is not None]
+    if not have:
+        return []
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    col = {t["label"]: colours[i % len(colours)] for i, t in enumerate(table)}
+    p0 = have[0]["m"]["profiles"]
+    heights = np.asarray(p0["heights"], float)
+    nh = len(heights)
+    fig, axes = plt.subplots(2, nh, figsize=(3.2 * nh, 6.4), sharey="row", squeeze=False)
+    for t in have:
+        p = t["m"]["profiles"]
+        x = (np.asarray(p["x"], float) - 0.5 * (p["x"][0] + p["x"][-1])) * 1e3
+        for r, layer in enumerate(("depth", "front")):
+            for k in range(nh):
+                axes[r, k].plot(x, -np.asarray(p[layer]["vy"], float)[k] * 1e3, "-", color=col[t["label"]],
+                                label=t["label"])
+    for r, layer in enumerate(("depth-averaged", "front-wall layer (z < d)")):
+        for k in range(nh):
+            ax = axes[r, k]
+            ax.set_title(f"{heights[k] * 1e3:g} mm above the outlet, {layer}", fontsize=8)
+            ax.set_xlabel("x from the centreline (mm)")
+            ax.grid(alpha=0.3)
+        axes[r, 0].set_ylabel("downward velocity -v_y (mm/s)")
+    axes[0, 0].legend(fontsize=7)
+    w = np.asarray(p0["window"], float)
+    fig.suptitle(f"{study}: vertical-velocity profiles averaged {w[0]:g}-{w[1]:g} s after the gate opening",
+                 fontsize=10)
+    files = [_save(fig, out / f"{study}_profiles.png")]
+
+    fig, ax = plt.subplots(2, 3, figsize=(15, 8.5))
+    a = ax[0, 0]
+    for t in have:
+        p = t["m"]["profiles"]
+        a.errorbar(np.asarray(p["heights"]) * 1e3, np.asarray(p["depth"]["B"]) * 1e3,
+                   yerr=np.asarray(p["depth"]["B_err"]) * 1e3, fmt="o-", color=col[t["label"]], capsize=3,
+                   label=t["label"])
+    a.set_xlabel("height above the outlet z (mm)")
+    a.set_ylabel("kinematic B (mm), depth-averaged")
+    a.set_title("B of v = v0 exp(-x^2 / (4 B z)) (no point: fit not meaningful)", fontsize=9)
+    a.legend(fontsize=7)
+    a = ax[0, 1]
+    for t in have:
+        p = t["m"]["profiles"]
+        a.plot(np.asarray(p["heights"]) * 1e3, np.asarray(p["channel"]["width"]) * 1e3, "o-", color=col[t["label"]],
+               label=t["label"])
+    xs = np.asarray(p0["x"], float)
+    a.axhline((xs[-1] - xs[0]) * 1e3, color="k", ls=":", lw=1, label="outermost cell centres")
+    a.set_xlabel("height above the outlet z (mm)")
+    a.set_ylabel("flow-channel width (mm)")
+    a.set_title(f"channel: downward speed > {float(p0['channel']['fraction']):g} of the centreline", fontsize=9)
+    a.legend(fontsize=7)
+    a = ax[0, 2]
+    k = nh // 2
+    for t in have:
+        c = t["m"]["centreline_series"]
+        a.plot(np.asarray(c["time"]), -np.asarray(c["vy"])[:, k] * 1e3, "-", color=col[t["label"]], label=t["label"])
+    a.axvspan(w[0], w[1], color="0.9", label="profile window")
+    a.set_xlabel("time after the gate opening (s)")
+    a.set_ylabel(f"centreline downward velocity at {heights[k] * 1e3:g} mm (mm/s)")
+    a.set_title("centreline velocity (box d x d around the centre line, full depth)", fontsize=9)
+    a.legend(fontsize=7)
+    groups = {}
+    for t in table:
+        groups.setdefault(t["group"], []).append(t)
+    swept_panel(ax[1, 0], study, groups, col, "flow_rate", 1e3, "g/s", "mass flow rate (g/s)", "steady mass flow rate")
+    swept_panel(ax[1, 1], study, groups, col, "bulk_density", 1.0, "kg/m3", "bulk density after filling (kg/m3)",
+                "bulk density (labels: flow pattern)")
+    for t in table:
+        if math.isfinite(t["x"]) and t["flow_pattern"]:
+            ax[1, 1].annotate(t["flow_pattern"], (t["x"], t["bulk_density"]), fontsize=6, rotation=30,
+                              textcoords="offset points", xytext=(3, 3))
+    a = ax[1, 2]
+    for t in have:
+        st = t["m"].get("stress")
+        if st is None:
+            continue
+        a.plot(np.asarray(st["pressure"]), np.asarray(st["y"]) * 1e3, "-", color=col[t["label"]], label=t["label"])
+        a.plot(np.asarray(st["janssen"]), np.asarray(st["y"]) * 1e3, "--", color=col[t["label"]], lw=1)
+    a.set_xlim(left=0.0)
+    a.set_ylim(bottom=0.0)
+    a.set_xlabel("vertical pressure -sigma_yy (Pa), cross-section average")
+    a.set_ylabel("height above the floor (mm)")
+    a.set_title("end of the fill: coarse-grained (solid), Janssen (dashed)", fontsize=9)
+    a.legend(fontsize=7)
+    for a in ax.ravel():
+        a.grid(alpha=0.3)
+    fig.suptitle(f"silo study '{study}'", fontsize=11)
+    files.append(_save(fig, out / f"{study}.png"))
+    return files
+
+
+def _study(args) -> tuple[list, list[dict]]:
+    """Run the study of the parsed ``args``: (files written, sweep rows)."""
+    from .sweep import run_sweep
+
+    base = load_study_case(args)
+    if not base.silo.profile_heights:
+        raise CaseError("silo.profile_heights", "is empty: the study needs the profile heights")
+    if args.study != "front-back" and args.no_periodic:
+        raise CaseError("--no-periodic", "only for the front-back study")
+    if args.study != "friction" and (args.mu or args.mu_r):
+        raise CaseError("--mu", "--mu and --mu-r are for the friction study")
+    if args.study == "friction" and args.values:
+        raise CaseError("--values", "the friction study takes --mu and --mu-r")
+    values = _floats(args.values, "--values") if args.values else None
+    variants = study_variants(args.study, values, not args.no_periodic,
+                              _floats(args.mu, "--mu") if args.mu else None,
+                              _floats(args.mu_r, "--mu-r") if args.mu_r else None)
+    out = Path(args.out).resolve() if args.out else Path(args.case).resolve() / args.study
+    rows = run_sweep(args.case, [v["overrides"] for v in variants], out, common=args.overrides,
+                     workers=args.workers, threads=args.threads, chart="mass_flow_rate")
+    table = study_table(rows, variants)
+    notes = [f"case {Path(args.case).resolve().name}" + (f" with {' '.join(args.overrides)}" if args.overrides
+                                                         else ""),
+             "B in mm (NaN/-: fit not meaningful, see the run's /measurements/silo/profiles B_notes); channel: "
+             "flow-channel width at each height; sigma_v: coarse-grained vertical stress at the end of the fill, "
+             "mean over 0.1-0.2 of the fill height, and Janssen's there"] + machine_notes()
+    files = write_study(args.study, table, out, notes)
+    return files, rows
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m cfddem.silo_thesis", description=__doc__.split("\n\n")[0])
+    ap.add_argument("study", choices=STUDIES)
+    ap.add_argument("--values", help="front-back: wall friction values; restitution: e values (comma-separated)")
+    ap.add_argument("--no-periodic", action="store_true", help="front-back: leave out the periodic-depth variant")
+    ap.add_argument("--mu", help="friction: particle-particle sliding friction values (default 0.15,0.57)")
+    ap.add_argument("--mu-r", help="friction: particle-particle rolling friction values (default 0,0.1,0.2)")
+    add_study_arguments(ap, CASE)
+    return run_study("silo_thesis", _study, ap.parse_args(argv))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,161 @@
+"""The chapter-5 silo measurements on synthetic data (cfddem.measure.silo): the kinematic
+model's B fit, the profile and centreline extraction, Janssen's formula; the periodic-depth and
+profile keys' one-line errors."""
+
+import math
+
+import numpy as np
+import pytest
+
+from cfddem.config import build_case
+from cfddem.errors import CaseError
+from cfddem.measure.coarse import janssen, lateral_pressure_ratio
+from tests.unit.test_silo_scene import BASE
+from cfddem.measure.silo import (VelocityField, centreline_velocity, fit_kinematic_B, kinematic_profile,
+                                 profile_measurements, rows_at_heights)
+
+
+def test_B_fit_recovers_B_of_a_gaussian_profile():
+    xc, z, B, v0 = 0.04, 0.03, 0.004, 0.12
+    x = np.linspace(0.002, 0.078, 21)
+    v = kinematic_profile(x - xc, v0, B, z)
+    f = fit_kinematic_B(x, v, z, xc)
+    assert f["reason"] == ""
+    assert f["B"] == pytest.approx(B, rel=1e-6)
+    assert f["v0"] == pytest.approx(v0, rel=1e-6)
+    # with 3 % noise: B within a few errors, the error of the order of the scatter
+    rng = np.random.default_rng(1)
+    f = fit_kinematic_B(x, v * (1 + 0.03 * rng.standard_normal(len(x))), z, xc)
+    assert abs(f["B"] - B) < 4 * f["B_err"] and 0 < f["B_err"] < 0.1 * B
+
+
+def test_B_is_nan_where_the_fit_is_not_meaningful():
+    x = np.linspace(0.0, 0.08, 21)
+    flat = np.full_like(x, 0.05)  # plug flow across the silo: no width to fit
+    f = fit_kinematic_B(x, flat, 0.05, 0.04)
+    assert math.isnan(f["B"]) and "too flat" in f["reason"]
+    f = fit_kinematic_B(x, -np.abs(flat), 0.05, 0.04)  # no downward flow
+    assert math.isnan(f["B"]) and "no downward flow" in f["reason"]
+    f = fit_kinematic_B(x[:3], flat[:3], 0.05, 0.04)
+    assert math.isnan(f["B"]) and "fewer than 4" in f["reason"]
+    assert math.isnan(fit_kinematic_B(x, flat, 0.0, 0.04)["B"])
+
+
+def test_rows_at_heights_interpolates_between_row_centres():
+    y = np.array([0.0, 0.01, 0.02])
+    v = np.array([[1.0, 2.0], [3.0, np.nan], [5.0, 6.0]])
+    r = rows_at_heights(y, v, [0.005, 0.02, 0.03])
+    assert r[0, 0] == pytest.approx(2.0) and math.isnan(r[0, 1])
+    assert r[1].tolist() == [5.0, 6.0]
+    assert np.isnan(r[2]).all()
+
+
+def synthetic_fields(B=0.003, v0=0.2, W=0.08, L=0.04, cell=0.004):
+    """Two window fields sampled from particles on a lattice moving with the kinematic profile
+    (downward), the front layer twice as fast as the depth average's other layers."""
+    xc = 0.5 * W
+    fa, ff = VelocityField(0.0, W, 0.0, 0.1, cell), VelocityField(0.0, W, 0.0, 0.1, cell)
+    xs = np.arange(cell / 2, W, cell)
+    ys = np.arange(cell / 2, 0.1, cell)
+    zs = np.array([0.001, 0.02, 0.03])
+    X, Y, Z = np.meshgrid(xs, ys, zs, indexing="ij")
+    pos = np.stack([X.ravel(), Y.ravel(), Z.ravel()], axis=1)
+    vel = np.zeros_like(pos)
+    vel[:, 1] = -kinematic_profile(pos[:, 0] - xc, v0, B, pos[:, 1])
+    for _ in range(3):
+        fa.sample(pos, vel)
+        front = pos[:, 2] < 0.0038
+        ff.sample(pos[front], 2 * vel[front])
+    return fa, ff, xc, pos, vel
+
+
+def test_profile_and_centreline_extraction_on_a_synthetic_field():
+    B, v0 = 0.003, 0.2
+    fa, ff, xc, pos, vel = synthetic_fields(B, v0)
+    hs = [0.012, 0.02, 0.05]
+    pm = profile_measurements(fa, ff, xc, hs, fraction=0.1)
+    # 0.05 m is a row centre (0.002 + 12 x 0.004): that row; 0.012 lies halfway between 0.010 and 0.014
+    exp = -kinematic_profile(fa.x - xc, v0, B, 0.05)
+    assert np.allclose(pm["depth"]["vy"][2], exp)
+    exp = -0.5 * (kinematic_profile(fa.x - xc, v0, B, 0.010) + kinematic_profile(fa.x - xc, v0, B, 0.014))
+    assert np.allclose(pm["depth"]["vy"][0], exp)
+    assert np.allclose(pm["front"]["vy"], 2 * pm["depth"]["vy"])
+    # B fitted to the extracted rows: within 3 % (the rows are interpolated between heights)
+    assert np.allclose(pm["depth"]["B"], B, rtol=0.03)
+    assert np.allclose(pm["front"]["B"], B, rtol=0.03)
+    # channel: where the speed falls to 10 % of the centreline's, x^2 = 4 B z ln 10 (to a cell)
+    half = np.sqrt(4 * B * np.asarray(hs) * math.log(10))
+    assert np.allclose(pm["channel"]["width"], 2 * half, atol=0.004)
+    assert pm["flow_pattern"] in ("mass", "semi-mass", "internal")
+    # the centreline series: mean v_y of the particles within d of the centre line and height
+    c = centreline_velocity(pos, vel, xc, [0.014, 0.5], 0.0038, 0.0038)
+    sel = (np.abs(pos[:, 0] - xc) < 0.0038) & (np.abs(pos[:, 1] - 0.014) < 0.0038)
+    assert c[0] == pytest.approx(vel[sel, 1].mean()) and c[0] < 0
+    assert math.isnan(c[1])
+
+
+def test_janssen_values():
+    # W = 0.08, T = 0.04, mu_side 0.17, mu_front 0.2, tan phi = 0.37
+    K = lateral_pressure_ratio(0.37)
+    s = math.sin(math.atan(0.37))
+    assert K == pytest.approx((1 - s) / (1 + s)) and K == pytest.approx(0.4848, abs=1e-4)
+    zc = 0.08 * 0.04 / (2 * K * (0.17 * 0.04 + 0.2 * 0.08))
+    assert zc == pytest.approx(0.14477, rel=1e-4)
+    gamma, H = 550 * 9.81, 0.145
+    v = janssen([0.0, 0.1, H, 0.2], H, gamma, 0.08, 0.04, K, 0.17, 0.2)
+    assert v[0] == pytest.approx(gamma * zc * (1 - math.exp(-H / zc)))
+    assert v[0] == pytest.approx(494.2, abs=0.1)
+    assert v[1] == pytest.approx(gamma * zc * (1 - math.exp(-0.045 / zc)))
+    assert v[2] == 0.0 and v[3] == 0.0
+    # deep silo: the asymptote gamma z_c; no wall friction on the front: z_c = T W / (2 K mu_side T)
+    assert janssen([0.0], 100.0, gamma, 0.08, 0.04, K, 0.17, 0.2)[0] == pytest.approx(gamma * zc)
+    assert janssen([0.0], 100.0, gamma, 0.08, 0.04, K, 0.17, 0.0)[0] == pytest.approx(gamma * 0.08 / (2 * K * 0.17))
+
+
+@pytest.mark.parametrize("silo, extra, key, words", [
+    ({"depth_boundary": "periodical"}, {}, "silo.depth_boundary", "one of"),
+    ({"depth_boundary": "periodic", "depth": 0.009}, {}, "silo.depth", "too shallow"),
+    ({"depth_boundary": "periodic"}, {"gas": {"enabled": True, "cells": [4, 4, 2]}}, "silo.depth_boundary", "gas"),
+    ({"profile_heights": [0.02, 0.01]}, {}, "silo.profile_heights", "increasing"),
+    ({"profile_heights": [0.0, 0.01]}, {}, "silo.profile_heights[0]", ""),
+    ({"profile_window": [0.7, 0.5]}, {}, "silo.profile_window", "start < end"),
+    ({"stress_grid": [0.006, 0.004]}, {}, "silo.stress_grid", "3"),
+    ({"bulk_friction": 0.0}, {}, "silo.bulk_friction", ""),
+])
+def test_bad_keys_give_a_one_line_error_naming_them(silo, extra, key, words):
+    raw = {k: (dict(v) if isinstance(v, dict) else v) for k, v in BASE.items()}
+    raw["silo"] = dict(BASE["silo"], **silo)
+    raw.update(extra)
+    with pytest.raises(CaseError) as e:
+        build_case(raw)
+    assert e.value.key == key
+    assert words in str(e.value) and "\n" not in str(e.value)
+
+
+def test_periodic_depth_is_refused_in_the_blender_and_with_mesh_walls():
+    raw = {k: (dict(v) if isinstance(v, dict) else v) for k, v in BASE.items()}
+    raw["geometry"] = {"type": "silo_blender"}
+    raw["silo"] = dict(BASE["silo"], depth_boundary="periodic")
+    with pytest.raises(CaseError) as e:
+        build_case(raw)
+    assert e.value.key == "silo.depth_boundary" and "blender" in str(e.value)
+    raw["geometry"] = {"type": "silo"}
+    raw["silo"] = dict(BASE["silo"], depth_boundary="periodic", walls="mesh")
+    with pytest.raises(CaseError) as e:
+        build_case(raw)
+    assert e.value.key in ("silo.walls", "silo.depth_boundary")
+
+
+def test_bed_top_leaves_out_the_rows_the_surface_left():
+    from cfddem.measure.silo import bed_top
+
+    f = VelocityField(0.0, 0.04, 0.0, 0.04, 0.01)  # 4 x 4 cells
+    f.count[:3] = 10.0
+    f.count[0, 0] = 5.0  # a wall cell with half the count still counts
+    f.count[3, 1:] = 10.0  # the top row: one cell empty (the surface left it)
+    assert bed_top(f) == pytest.approx(0.03)
+    f.count[0, 1:] = 0.0  # the row through the slot below the floor: partly empty, the bed above counts
+    assert bed_top(f) == pytest.approx(0.03)
+    f.count[2, 2] = 2.0  # under a quarter of the median: the row is not part of the bed
+    assert bed_top(f) == pytest.approx(0.02)
+    assert math.isnan(bed_top(VelocityField(0.0, 0.04, 0.0, 0.04, 0.01)))
