@@ -272,8 +272,9 @@ SILO_KEYS = {
     "stress_width": _nonneg(0.0, "m", "stress_profile: standard deviation of the Gaussian kernel (0: 3 particle "
                             "radii, the thesis's)"),
     "bulk_friction": _f(0.37, "-", "stress_profile: bulk friction tan(phi) for Janssen's K = (1 - sin phi) / "
-                        "(1 + sin phi); 0.37 is the shear cell's with the thesis's parameters (mu 0.35, mu_r 0.1, "
-                        "docs/shear-cell.md)", lo=0.0, lo_open=True),
+                        "(1 + sin phi); 0.37 is the 40 mm test cell's with the thesis's parameters (mu 0.35, mu_r 0.1); "
+                        "the 95 mm Jenike cell gives 0.438 (cases/shear_thesis, two fills; docs/shear-cell.md)",
+                        lo=0.0, lo_open=True),
     "front_back": wall_override("front and back walls"),
     "sides": wall_override("side walls"),
     "bottom": wall_override("bottom plates or hopper walls, and the slot lips"),
