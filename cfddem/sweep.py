@@ -360,7 +360,34 @@ def _same_config(out: Path, case=None) -> bool:
         _, stored = read_config(out / "results.h5")
     except Exception:
         return False
-    return case is None or stored == _canonical(case.resolved)
+    if case is None:
+        return True
+    cur = _canonical(case.resolved)
+    return stored == cur or _same_with_new_defaults(cur, stored, _schema_defaults())
+
+
+def _schema_defaults() -> dict:
+    """The default of every case key (JSON round trip, as stored configurations read back)."""
+    from .config import SCHEMA, _default_of
+
+    return json.loads(json.dumps(_default_of(SCHEMA), sort_keys=True))
+
+
+def _same_with_new_defaults(cur, stored, defaults) -> bool:
+    """``cur`` equals ``stored`` except for keys that ``stored`` lacks (added to cfddem after that
+    run was made) and that hold their default in ``cur``: such a key did not change the run."""
+    if not (isinstance(cur, dict) and isinstance(stored, dict)):
+        return cur == stored
+    if any(k not in cur for k in stored):
+        return False
+    dflt = defaults if isinstance(defaults, dict) else {}
+    for k, v in cur.items():
+        if k not in stored:
+            if k not in dflt or v != dflt[k]:
+                return False
+        elif not _same_with_new_defaults(v, stored[k], dflt.get(k)):
+            return False
+    return True
 
 
 def can_resume(out: str | Path, case) -> bool:

@@ -144,6 +144,24 @@ def test_run_is_complete_needs_done_results_and_same_config(tmp_path):
     assert not S.run_is_complete(tmp_path / "none", case)
 
 
+def test_a_run_made_before_a_key_existed_is_the_same_run_at_the_keys_default(tmp_path):
+    """A key added to cfddem after a run (here: frame.rpm, removed from the stored configuration)
+    leaves the run reusable while the case holds the key's default, not when it sets another."""
+    import copy
+
+    case = load_case(BOX)
+    old = copy.deepcopy(case)
+    del old.resolved["frame"]["rpm"]
+    out = fake_run(tmp_path / "a", old)
+    assert S.run_is_complete(out, case)
+    assert not S.run_is_complete(out, load_case(BOX, overrides={"frame.rpm": 8.0}))
+    assert not S.run_is_complete(out, load_case(BOX, overrides={"contact.particle_wall.mu": 0.5}))
+    # a key the run had and the case no longer has: not the same run
+    new = copy.deepcopy(case)
+    new.resolved["frame"]["gone"] = 1.0
+    assert not S.run_is_complete(fake_run(tmp_path / "b", new), case)
+
+
 # ------------------------------------------------------------------------------ summary files
 ROWS = [
     {"name": "mu=0.1__e=0.5", "values": {"mu": 0.1, "e": 0.5}, "status": "done", "wall_time": 1.25, "threads": 1,
