@@ -125,43 +125,44 @@ def calibrate(case_dir, xs, murs, out, overrides=(), threads=None, overwrite=Fal
     seed0 = int(base.particles.seed)
     out.mkdir(parents=True, exist_ok=True)
     done_here = []
-    for rot in rotations:
-        for mur in murs:
-            for x in xs:
-                for k in range(replicas):
-                    seed = seed0 + k
-                    sub = out / _folder_name(label, rot, mur, x, seed)
-                    ov = base_ov + [f"{xkey}={x}", f"{rkey}={mur}", f'particles.rotation="{rot}"',
-                                    f"particles.seed={seed}"]
-                    if threads is not None:
-                        ov.append(f"time.threads={int(threads)}")
-                    case = load_case(case_dir, overrides=ov)
-                    row = {"label": label, "rotation": rot, "mu_r": mur, "x": x, "seed": seed, "friction": math.nan,
-                           "rise": math.nan, "shear_force": math.nan, "normal_force": math.nan, "load_error": math.nan,
-                           "inertial_number": math.nan, "n_sample": 0, "status": "", "wall_s": math.nan,
-                           "folder": sub.name}
-                    if not overwrite and run_is_complete(sub, case):
-                        row["status"] = "done"
-                        row["wall_s"] = float(read_run_summary(sub).get("wall_time", math.nan))
-                        how = "reused"
-                    else:
-                        t0 = time.perf_counter()
-                        summary = Simulation(case, sub, overwrite=True, echo=False, progress=False).run()
-                        row["wall_s"] = time.perf_counter() - t0
-                        row["status"] = summary.status
-                        how = f"{row['wall_s']:.0f} s"
-                    try:
-                        m = read_measurements(sub / "results.h5")
-                        sh = m["shear"]
-                        row.update(friction=float(m[name]), shear_force=float(sh["mean_shear_force"]),
-                                   normal_force=float(sh["mean_normal_force"]), load_error=float(sh["load_error"]),
-                                   inertial_number=float(sh["inertial_number"]), n_sample=int(sh["n_samples"]),
-                                   rise=window_rise(sh))
-                    except (KeyError, OSError) as e:
-                        row["status"] = f"{row['status']} (no measurement: {e})"
-                    done_here.append(row)
-                    log(f"{label}, rotation {rot}, mu_r = {mur:g}, {xkey} = {x:g}, seed {seed}: {name} "
-                        f"{row['friction']:.4g} ({row['status']}, {how})")
+    points_to_run = [(rot, mur, x, k) for rot in rotations for mur in murs for x in xs for k in range(replicas)]
+    for rot, mur, x, k in points_to_run:
+        if done_here and done_here[-1]["status"].startswith("interrupted"):
+            log("interrupted: the sweep stops here (call the command again to continue; finished runs are reused)")
+            break  # Ctrl-C or a termination signal stops the sweep, not only its current run
+        seed = seed0 + k
+        sub = out / _folder_name(label, rot, mur, x, seed)
+        ov = base_ov + [f"{xkey}={x}", f"{rkey}={mur}", f'particles.rotation="{rot}"',
+                        f"particles.seed={seed}"]
+        if threads is not None:
+            ov.append(f"time.threads={int(threads)}")
+        case = load_case(case_dir, overrides=ov)
+        row = {"label": label, "rotation": rot, "mu_r": mur, "x": x, "seed": seed, "friction": math.nan,
+               "rise": math.nan, "shear_force": math.nan, "normal_force": math.nan, "load_error": math.nan,
+               "inertial_number": math.nan, "n_sample": 0, "status": "", "wall_s": math.nan,
+               "folder": sub.name}
+        if not overwrite and run_is_complete(sub, case):
+            row["status"] = "done"
+            row["wall_s"] = float(read_run_summary(sub).get("wall_time", math.nan))
+            how = "reused"
+        else:
+            t0 = time.perf_counter()
+            summary = Simulation(case, sub, overwrite=True, echo=False, progress=False).run()
+            row["wall_s"] = time.perf_counter() - t0
+            row["status"] = summary.status
+            how = f"{row['wall_s']:.0f} s"
+        try:
+            m = read_measurements(sub / "results.h5")
+            sh = m["shear"]
+            row.update(friction=float(m[name]), shear_force=float(sh["mean_shear_force"]),
+                       normal_force=float(sh["mean_normal_force"]), load_error=float(sh["load_error"]),
+                       inertial_number=float(sh["inertial_number"]), n_sample=int(sh["n_samples"]),
+                       rise=window_rise(sh))
+        except (KeyError, OSError) as e:
+            row["status"] = f"{row['status']} (no measurement: {e})"
+        done_here.append(row)
+        log(f"{label}, rotation {rot}, mu_r = {mur:g}, {xkey} = {x:g}, seed {seed}: {name} "
+            f"{row['friction']:.4g} ({row['status']}, {how})")
     keep = {(r["label"], r["rotation"], r["mu_r"], r["x"], r["seed"]) for r in done_here}
     rows = [r for r in _read_runs(out) if (r["label"], r["rotation"], r["mu_r"], r["x"], r["seed"]) not in keep]
     rows += done_here
@@ -322,7 +323,8 @@ def run_calibrate_from_args(args) -> int:
         raise CaseError("--mu-wall" if wall else "--mu", "needs at least one value")
     murs = _floats(args.mu_r, "--mu-r") if args.mu_r else []
     rots = [r.strip() for r in args.rotation.split(",") if r.strip()]
-    calibrate(args.case, xs, murs, args.out, overrides=args.set, threads=args.threads, overwrite=args.overwrite,
-              target=args.target, wall=wall, rotations=rots, replicas=args.replicas, label=args.label)
+    rows = calibrate(args.case, xs, murs, args.out, overrides=args.set, threads=args.threads,
+                     overwrite=args.overwrite, target=args.target, wall=wall, rotations=rots, replicas=args.replicas,
+                     label=args.label)
     print(f"table: {Path(args.out) / 'calibration.md'}, plot: {Path(args.out) / 'calibration.png'}")
-    return 0
+    return 130 if any(r["label"] == args.label and r["status"].startswith("interrupted") for r in rows) else 0

@@ -86,6 +86,23 @@ def test_wall_friction_sweep(write_case, tmp_path, one_numba_thread):
     assert "wall friction against `shear.plate.mu`" in (out / "calibration.md").read_text()
 
 
+def test_an_interrupted_run_stops_the_sweep(write_case, tmp_path, monkeypatch, capsys):
+    """Ctrl-C (or SIGTERM) ends the current run as 'interrupted'; the sweep must stop there, not
+    go on to the next point."""
+    import cfddem.simulation as simulation
+
+    class Summary:
+        status = "interrupted"
+
+    calls = []
+    monkeypatch.setattr(simulation.Simulation, "run", lambda self: calls.append(1) or Summary())
+    d = write_case(CASE.format(clump="none", variant="bulk", n=330), name="cal")
+    rc = main(["calibrate", str(d), "--mu", "0.1,0.3,0.6", "--out", str(tmp_path / "o")])
+    assert rc == 130 and len(calls) == 1
+    assert "the sweep stops here" in capsys.readouterr().out
+    assert len(_rows(tmp_path / "o" / "runs.csv")) == 1
+
+
 def test_points_mean_and_std():
     rows = [dict(label="a", rotation="free", mu_r=0.0, x=0.2, friction=v, rise=0.1, shear_force=1.0, normal_force=2.0,
                  load_error=0.0, wall_s=1.0) for v in (0.3, 0.4, math.nan)]
