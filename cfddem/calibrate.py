@@ -98,6 +98,7 @@ def calibrate(case_dir, xs, murs, out, overrides=(), threads=None, overwrite=Fal
     (this call's and earlier calls' with other labels)."""
     from .config import load_case
     from .io.results import read_measurements
+    from .measure.shear import window_rise
     from .simulation import Simulation
     from .sweep import read_run_summary, run_is_complete
 
@@ -157,7 +158,9 @@ def calibrate(case_dir, xs, murs, out, overrides=(), threads=None, overwrite=Fal
             row.update(friction=float(m[name]), shear_force=float(sh["mean_shear_force"]),
                        normal_force=float(sh["mean_normal_force"]), load_error=float(sh["load_error"]),
                        inertial_number=float(sh["inertial_number"]), n_sample=int(sh["n_samples"]),
-                       rise=window_rise(sh))
+                       rise=window_rise(sh["displacement"], sh["shear_force"],
+                                        np.asarray(sh["normal_force"], float) + np.asarray(sh["weight_above"], float),
+                                        sh["window"]))
         except (KeyError, OSError) as e:
             row["status"] = f"{row['status']} (no measurement: {e})"
         done_here.append(row)
@@ -168,22 +171,6 @@ def calibrate(case_dir, xs, murs, out, overrides=(), threads=None, overwrite=Fal
     rows += done_here
     _write(rows, out, name, xkey, target)
     return rows
-
-
-def window_rise(sh) -> float:
-    """How much the ratio S / (N + W) still changes across the steady window of a run's
-    ``/measurements/shear``: (ratio over the window's second half - over its first half) / ratio
-    over the whole window.  Near 0 at a steady state; NaN with fewer than 4 samples."""
-    d = np.asarray(sh["displacement"], float)
-    lo, hi = np.asarray(sh["window"], float)[:2]
-    sel = np.flatnonzero((d >= lo) & (d <= hi))
-    if len(sel) < 4:
-        return math.nan
-    S = np.asarray(sh["shear_force"], float)[sel]
-    NW = np.asarray(sh["normal_force"], float)[sel] + np.asarray(sh["weight_above"], float)[sel]
-    k = len(sel) // 2
-    whole = S.mean() / NW.mean()
-    return float((S[k:].mean() / NW[k:].mean() - S[:k].mean() / NW[:k].mean()) / whole)
 
 
 def _read_runs(out: Path) -> list[dict]:

@@ -30,7 +30,7 @@ def bulk_friction(displacement, shear_force, normal_force, travel: float,
     if not (len(x) == len(s) == len(n)):
         raise ValueError("displacement, shear_force and normal_force need the same length")
     lo, hi = float(window[0]) * travel, float(window[1]) * travel
-    sel = (x >= lo - 1e-12 * abs(travel)) & (x <= hi + 1e-12 * abs(travel)) & np.isfinite(s) & np.isfinite(n)
+    sel = _in_window(x, s, n, lo, hi, travel)
     k = int(sel.sum())
     if k == 0:
         return {"mu": math.nan, "shear_force": math.nan, "normal_force": math.nan, "ratio_std": math.nan,
@@ -38,6 +38,31 @@ def bulk_friction(displacement, shear_force, normal_force, travel: float,
     ms, mn = float(s[sel].mean()), float(n[sel].mean())
     return {"mu": ms / mn if mn > 0 else math.nan, "shear_force": ms, "normal_force": mn,
             "ratio_std": float(np.std(s[sel] / n[sel])), "n_samples": k, "window": (lo, hi)}
+
+
+def _in_window(x, s, n, lo: float, hi: float, scale: float) -> np.ndarray:
+    """The samples with displacement in [lo, hi] (round-off 1e-12 ``scale`` allowed) and finite
+    forces."""
+    tol = 1e-12 * abs(scale)
+    return (x >= lo - tol) & (x <= hi + tol) & np.isfinite(s) & np.isfinite(n)
+
+
+def window_rise(displacement, shear_force, normal_force, window) -> float:
+    """How much the ratio shear_force / normal_force still changes across the steady window
+    ``window`` = (lo, hi) (m, as :func:`bulk_friction` returns it): (ratio of the means over the
+    window's second half of samples - over its first half) / ratio over the whole window.  Near
+    0 at a steady state; NaN with fewer than 4 samples."""
+    x = np.asarray(displacement, float).ravel()
+    s = np.asarray(shear_force, float).ravel()
+    n = np.asarray(normal_force, float).ravel()
+    lo, hi = (float(w) for w in np.asarray(window, float)[:2])
+    sel = np.flatnonzero(_in_window(x, s, n, lo, hi, hi))
+    if len(sel) < 4:
+        return math.nan
+    s, n = s[sel], n[sel]
+    k = len(sel) // 2
+    whole = s.mean() / n.mean()
+    return float((s[k:].mean() / n[k:].mean() - s[:k].mean() / n[:k].mean()) / whole)
 
 
 def inertial_number(speed: float, diameter: float, pressure: float, density: float,

@@ -10,7 +10,8 @@ import pytest
 
 import numpy as np
 
-from cfddem.calibrate import interpolate_target, points, window_rise
+from cfddem.calibrate import interpolate_target, points
+from cfddem.measure.shear import window_rise
 from cfddem.cli import main
 
 from .test_shear_cell import CASE
@@ -115,14 +116,13 @@ def test_points_mean_and_std():
 
 def test_window_rise():
     d = np.linspace(0.0, 0.006, 61)
-    steady = {"displacement": d, "window": np.array([0.003, 0.006]), "normal_force": np.full(61, 10.0),
-              "weight_above": np.full(61, 1.0), "shear_force": np.full(61, 5.5)}
-    assert window_rise(steady) == 0.0
+    n = np.full(61, 11.0)  # normal force + weight above
+    w = (0.003, 0.006)
+    assert window_rise(d, np.full(61, 5.5), n, w) == 0.0
     # a shear force still growing in proportion to the travel (a jammed sample): the 31 samples
     # from 3 to 6 mm split 15 / 16, the halves' means 3.7 and 5.25 (x 1/11), the whole 4.5
-    rising = dict(steady, shear_force=1000.0 * d)
-    assert window_rise(rising) == pytest.approx((5.25 - 3.7) / 4.5, rel=1e-9)
-    assert math.isnan(window_rise(dict(steady, window=np.array([0.0031, 0.0033]))))
+    assert window_rise(d, 1000.0 * d, n, w) == pytest.approx((5.25 - 3.7) / 4.5, rel=1e-9)
+    assert math.isnan(window_rise(d, np.full(61, 5.5), n, (0.0031, 0.0033)))
 
 
 def test_interpolate_target():
