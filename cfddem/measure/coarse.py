@@ -478,14 +478,24 @@ def lateral_pressure_ratio(bulk_friction: float) -> float:
     return (1.0 - s) / (1.0 + s)
 
 
+def janssen_length(W: float, T: float, K: float, mu_side: float, mu_front: float) -> float:
+    """Janssen's z_c = W T / (2 K (mu_side T + mu_front W)) of a W x T rectangular silo
+    (:func:`janssen`); infinite for frictionless walls (no wall carries weight)."""
+    grip = mu_side * T + mu_front * W
+    return W * T / (2.0 * K * grip) if grip > 0 else math.inf
+
+
 def janssen(z, H: float, gamma: float, W: float, T: float, K: float, mu_side: float, mu_front: float):
     """Janssen's vertical stress (Pa, compression positive) at heights ``z`` in a W x T
     rectangular silo filled to H with material of weight density ``gamma`` (N/m3):
-    sigma_v = gamma z_c (1 - exp(-(H - z) / z_c)), z_c = W T / (2 K (mu_side T + mu_front W)),
-    mu_side the friction of the two walls of width T (normal along W), mu_front of the two of
-    width W (normal along T); 0 above H."""
+    sigma_v = gamma z_c (1 - exp(-(H - z) / z_c)), z_c = W T / (2 K (mu_side T + mu_front W))
+    (:func:`janssen_length`), mu_side the friction of the two walls of width T (normal along W),
+    mu_front of the two of width W (normal along T); 0 above H.  Frictionless walls: the
+    hydrostatic limit gamma (H - z)."""
     z = np.asarray(z, float)
-    zc = W * T / (2.0 * K * (mu_side * T + mu_front * W))
+    zc = janssen_length(W, T, K, mu_side, mu_front)
+    if not math.isfinite(zc):
+        return np.where(z < H, gamma * (H - z), 0.0)
     return np.where(z < H, gamma * zc * (1.0 - np.exp(-(H - z) / zc)), 0.0)
 
 
@@ -674,7 +684,7 @@ def coarse_grain_run(src, out=None, *, spacing=None, width: float | None = None,
                  f"Janssen K = {K:.3g}, mu_side = {mu_s:g}, mu_front = {mu_f:g}")
         cols.append(jz)
         head += ",janssen_Pa"
-        zc = prof["W"] * prof["T"] / (2 * K * (mu_s * prof["T"] + mu_f * prof["W"]))
+        zc = janssen_length(prof["W"], prof["T"], K, mu_s, mu_f)
         summary.update(K=K, mu_side=mu_s, mu_front=mu_f, z_c=zc)
         floor = (prof["height"] > 0.1 * prof["H"]) & (prof["height"] < 0.2 * prof["H"])
         if floor.any():

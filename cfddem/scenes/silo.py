@@ -908,7 +908,8 @@ class SiloScene(Scene):
         height above the floor y = 0 (:func:`~cfddem.measure.coarse.vertical_profile`), with
         Janssen's curve for the side walls' and front/back walls' friction (0 with a periodic
         depth) and K from ``bulk_friction``."""
-        from ..measure.coarse import coarse_grain, default_grid, janssen, lateral_pressure_ratio, vertical_profile
+        from ..measure.coarse import (coarse_grain, default_grid, janssen, janssen_length, lateral_pressure_ratio,
+                                      vertical_profile)
 
         sys_ = self.sim.system
         s = self.s
@@ -924,11 +925,10 @@ class SiloScene(Scene):
         K = lateral_pressure_ratio(s["bulk_friction"])
         g = self.case.gravity.g
         W, T, H = prof["W"], prof["T"], prof["H"]
-        zc = W * T / (2.0 * K * (mu_side * T + mu_front * W)) if mu_side * T + mu_front * W > 0 else math.inf
+        zc = janssen_length(W, T, K, mu_side, mu_front)
         y = prof["height"]
         hydro = np.where(y < 0.0, np.nan, np.where(y < H, prof["rho_b"] * g * (H - y), 0.0))
-        jz = (np.where(y < 0.0, np.nan, janssen(y, H, prof["rho_b"] * g, W, T, K, mu_side, mu_front))
-              if math.isfinite(zc) else hydro)
+        jz = np.where(y < 0.0, np.nan, janssen(y, H, prof["rho_b"] * g, W, T, K, mu_side, mu_front))
         px, pz = prof["lateral"]
         with np.errstate(invalid="ignore", divide="ignore"):
             kx = np.where(prof["pressure"] > 0, px / prof["pressure"], np.nan)

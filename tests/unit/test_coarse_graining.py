@@ -2,6 +2,8 @@
 normalised kernel, the contact stress's integral (the virial) for pairs, walls, periodic images
 and clumps, and the hydrostatic stress of a column at rest."""
 
+import math
+
 import numpy as np
 import pytest
 
@@ -253,3 +255,12 @@ def test_command_on_a_run_checkpoint(tmp_path, root):
     # bad input: one line, exit code 2
     assert main(["coarse-grain", str(tmp_path), "--out", str(out)]) == 2
     assert main(["coarse-grain", str(tmp_path / "run"), "--spacing", "1,2", "--out", str(out)]) == 2
+
+
+def test_janssen_frictionless_walls_is_hydrostatic():
+    from cfddem.measure.coarse import janssen, janssen_length
+
+    assert janssen_length(0.08, 0.04, 0.5, 0.0, 0.0) == math.inf
+    z = np.array([0.0, 0.05, 0.1, 0.2])
+    np.testing.assert_allclose(janssen(z, 0.1, 5000.0, 0.08, 0.04, 0.5, 0.0, 0.0), [500.0, 250.0, 0.0, 0.0], rtol=1e-14)
+    assert janssen_length(0.08, 0.04, 0.5, 0.17, 0.2) == pytest.approx(0.08 * 0.04 / (2 * 0.5 * (0.17 * 0.04 + 0.2 * 0.08)))
