@@ -1038,10 +1038,11 @@ class ParticleSystem:
             c.wfix[new] = 1.0
             c.L[new] = 0.0
             k += int(new.sum())
-            for b in np.flatnonzero(new):
-                mem = c.members[c.start[b]:c.start[b + 1]]
-                self._omega[:n][mem] = 0.0
-                self._held[:n][mem] = 2
+            body = self._body[:n]
+            mem = body >= 0
+            mem[mem] = new[body[mem]]  # the members of the clumps locked now
+            self._omega[:n][mem] = 0.0
+            self._held[:n][mem] = 2
         self._forces_stale = True
         return k
 

@@ -76,6 +76,19 @@ def test_locked_clumps_keep_their_orientation_in_a_collision():
     assert np.max(np.abs(s2.clumps.L)) > 0.0  # free clumps spin in the same collision
 
 
+def test_lock_rotation_mid_run_locks_clumps_and_their_members():
+    s, q = _two_pellets(locked=False)
+    s.add_particles([[0.02, 0.0, 0.0]], 0.0, R, RHO, omega=[0.0, 0.0, 5.0])
+    s.step(2000)  # the pellets collide and spin
+    assert np.max(np.abs(s.clumps.L)) > 0.0
+    assert s.lock_rotation() == 3  # two clumps and the sphere
+    assert np.all(s.clumps.wfix == 1.0) and np.all(s.clumps.L == 0.0)
+    assert np.all(s.omega == 0.0) and np.all(s._held[: s.n] == 2)
+    quat = s.clumps.quat.copy()
+    s.step(500)
+    assert np.array_equal(s.clumps.quat, quat)
+
+
 def test_lock_rotation_mid_run_and_feed_release():
     pp = LinearContact(k_n=1000.0, e_n=0.5, e_t=0.5, mu=0.3)
     s = ParticleSystem(pp=pp, walls=[], dt=1e-5)
