@@ -124,6 +124,7 @@ class Simulation:
         self.echo = echo
         self.show_progress = progress
         self.dt = case.time.dt
+        self._exit_every = max(1, int(round(1e-3 / self.dt)))  # steps between exit/lost checks (~1 ms)
         self.timings = {"particles": 0.0, "inlet_exit": 0.0, "measurements": 0.0, "output": 0.0,
                         "checkpoints": 0.0, "gas": 0.0, "coupling": 0.0}
         self.counters = {"mass_out": 0.0, "count_out": 0, "mass_lost": 0.0, "count_lost": 0}
@@ -165,6 +166,9 @@ class Simulation:
             self.system.add_particles(init["pos"], init["vel"], init["radius"], case.particles.density,
                                       omega=init["omega"], label=init["label"])
         self.inlet = self.scene.make_inlet()
+        plane = self.scene.exit_plane()
+        if plane is not None:  # particles past the exit leave at the engine's next rebuild
+            self.system.set_sink(*plane)
         self.measure = self.scene.make_measurements()
         self.budget = self.scene.make_budget()  # the particles' momentum budget, sampled with measure
         if self.budget is not None:  # it counts every step from its first sample on
@@ -385,7 +389,7 @@ class Simulation:
         dt = self.dt
         sys_ = self.system
         sch = self.schedules
-        exit_every = max(1, int(round(1e-3 / dt)))  # exit/lost check every ~1 ms of simulated time
+        exit_every = self._exit_every  # exit/lost check every ~1 ms of simulated time
         max_steps = case.time.max_steps or None
         wall_limit = case.time.wall_time_limit or None
         wall_ckpt = case.checkpoint.wall_interval or None
@@ -549,14 +553,15 @@ class Simulation:
         c = self.counters
         if self.inlet is not None:
             self.inlet.insert(sys_, sys_.time, self.dt)
+        if sys_.n and sys_.steps_since_rebuild >= self._exit_every and sys_.beyond_sink().any():
+            # the exit's particles leave at the engine's neighbour rebuilds, at the latest here,
+            # when the lists have stood for a whole check interval (~1 ms): within ~2 ms
+            sys_.drain_sink()
+        k, m = sys_.take_sunk()
+        c["count_out"] += k
+        c["mass_out"] += m
         if sys_.n:
             pos = sys_.pos
-            out = self.scene.exit_mask(pos)
-            if out is not None and out.any():
-                k, m = sys_.remove_particles(out)
-                c["count_out"] += k
-                c["mass_out"] += m
-                pos = sys_.pos
             self._check_walls_crossed()
             margin = self.case.exit.lost_margin
             lost = np.any((pos < self.box_lo - margin) | (pos > self.box_hi + margin), axis=1)

@@ -222,9 +222,11 @@ class PressureOutlet(BC):
     Particles near it are mapped as near a wall (``particle_rule = "fold"``): a particle within
     half a cell of the outlet gives its weight to the last interior face, not to the outlet
     face that the gas solves for, and a particle centre past the outlet is clamped onto it
-    (docs/gas.md, "The boundary model")."""
+    (docs/gas.md, "The boundary model").  With ``particle_rule = "leave"`` a particle centre
+    past the outlet has left the gas: no volume, drag or pressure force."""
 
     p: float | Callable = 0.0
+    particle_rule: str = "fold"
     kind = "outlet"
     normal_rule = "solved"
     tangential_rule = "zero_gradient"

@@ -180,6 +180,10 @@ class ParticleSystem:
         # velocity zones (add_velocity_zone): rows (lo xyz, hi xyz, axis, value); bodies set last step
         self._zones = np.zeros((0, 8))
         self.zone_count = 0
+        # a sink plane (set_sink): (point, unit outward normal) or None; what it took so far
+        self._sink = None
+        self.sunk_count = 0
+        self.sunk_mass = 0.0
 
     # ------------------------------------------------------------------ storage
     def _alloc_particles(self, cap):
@@ -336,6 +340,52 @@ class ParticleSystem:
         self._need_rebuild = True
         self._forces_stale = True
         return cnt, removed_mass
+
+    def set_sink(self, point=None, normal=None) -> None:
+        """Particles whose centre lies beyond the plane through ``point`` with outward
+        ``normal`` leave the system at the next neighbour rebuild that :meth:`step` makes (a
+        clump when one of its members does), instead of forcing one of their own: an exit that
+        costs no rebuilds.  They count in ``sunk_count`` / ``sunk_mass`` (:meth:`take_sunk`).
+        Until then they move and touch like the others.  ``set_sink()`` removes the sink."""
+        if point is None:
+            self._sink = None
+            return
+        nrm = np.asarray(normal, float).reshape(3)
+        ln = float(np.linalg.norm(nrm))
+        if not ln > 0.0 or not np.all(np.isfinite(nrm)):
+            raise CaseError("normal", f"the sink's normal must be a non-zero vector, got {nrm.tolist()}")
+        self._sink = (np.asarray(point, float).reshape(3).copy(), nrm / ln)
+
+    def beyond_sink(self) -> np.ndarray:
+        """(n,) bool: the particles beyond the sink plane (all False without a sink)."""
+        if self._sink is None:
+            return np.zeros(self.n, bool)
+        p, nrm = self._sink
+        return self.pos @ nrm > float(p @ nrm)
+
+    def drain_sink(self) -> tuple[int, float]:
+        """Remove the particles beyond the sink plane now (the next step rebuilds the lists);
+        returns (count, mass), which also count in ``sunk_count`` / ``sunk_mass``."""
+        if self._sink is None or not self.n:
+            return 0, 0.0
+        beyond = self.beyond_sink()
+        if not beyond.any():
+            return 0, 0.0
+        k, m = self.remove_particles(beyond)
+        self.sunk_count += k
+        self.sunk_mass += m
+        return k, m
+
+    @property
+    def steps_since_rebuild(self) -> int:
+        """Drifts since the last neighbour rebuild."""
+        return self._ndrift
+
+    def take_sunk(self) -> tuple[int, float]:
+        """(count, mass) that the sink took since the last call, and reset them."""
+        out = (self.sunk_count, self.sunk_mass)
+        self.sunk_count, self.sunk_mass = 0, 0.0
+        return out
 
     def overlaps(self, pos, radius) -> np.ndarray:
         """Would these new spheres overlap existing particles or each other?  (m,) bool."""
@@ -726,6 +776,9 @@ class ParticleSystem:
             self.step_count += n_steps
             return StepStatus(ok=True, steps_done=n_steps)
         if self._forces_stale or self._need_rebuild:
+            self.drain_sink()
+            if self.n == 0:
+                return self.step(n_steps)
             st = self._refresh()
             if st is not None:
                 return st
@@ -756,6 +809,15 @@ class ParticleSystem:
             if self.nm:
                 self._move_meshes(self.time + dt)
             if self._need_rebuild or self._expired(m2, disp):
+                if self._sink is not None and self.drain_sink()[0]:
+                    # the rows left mid-step (their forces are evaluated below, after the rebuild)
+                    self._forces_stale = False
+                    if self.n == 0:  # the last ones left: the walls have moved, the clock goes on
+                        self._forces_stale = True
+                        self.time += dt
+                        self.step_count += 1
+                        self.step(n_steps - s - 1)
+                        return StepStatus(ok=True, steps_done=n_steps)
                 try:
                     self._rebuild()
                 except MemoryError as exc:

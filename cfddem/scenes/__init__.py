@@ -30,7 +30,8 @@ During a run (instance methods; ``self.sim`` is the Simulation):
 
 - ``make_inlet()``: an inlet object (``insert``, ``get_state``...) or None
 - ``make_measurements()``: a sampled measurement object (``measure``, ``results``...) or None
-- ``exit_mask(pos)``: particles that leave through the scene's exit (None: no exit)
+- ``exit_plane()``: (point, outward normal) of the plane that particles leave the scene through
+  (None: no exit); they leave at the engine's next neighbour rebuild (``ParticleSystem.set_sink``)
 - ``start()`` once after the system is built and before the first output (not on resume)
 - ``next_time(t)``, ``max_steps()``: when the loop must stop next for the scene
 - ``after_steps()`` after every chunk of steps (control, gates, sampling)
@@ -139,7 +140,7 @@ class Scene:
         """A :class:`cfddem.measure.budget.MomentumBudget` sampled with the measurements, or None."""
         return None
 
-    def exit_mask(self, pos):
+    def exit_plane(self):
         return None
 
     def start(self) -> None:

@@ -247,7 +247,9 @@ class ChuteScene(Scene):
         lid = cls.lid_bc(case)
         rho = float(gcfg.density)
         # outlet pressure hydrostatic across the outlet plane (zero for gas at rest)
-        pout = PressureOutlet(p=lambda x, y, z, _g=g, _r=rho: _r * (_g[0] * x + _g[1] * y))
+        # (particles past the exit plane wait there for the engine's next rebuild: they have left
+        # the gas, particle rule "leave")
+        pout = PressureOutlet(p=lambda x, y, z, _g=g, _r=rho: _r * (_g[0] * x + _g[1] * y), particle_rule="leave")
         bcs = {"x-": NoSlip(), "x+": NoSlip(), "y-": NoSlip(), "y+": lid, "z-": Inlet(speed=vin), "z+": pout}
         # velocity scale: the inlet, and the lid cross-wind at the far corner of the domain
         corners = np.array([[x, grid.lengths[1], z] for x in (0.0, grid.lengths[0])
@@ -306,5 +308,5 @@ class ChuteScene(Scene):
         return MomentumBudget(z_a + h * np.arange(nb + 1), axis=2, start_time=case.measurements.start_time,
                               wall_names=names)
 
-    def exit_mask(self, pos):
-        return pos[:, 2] > self.case.exit.z
+    def exit_plane(self):
+        return (0.0, 0.0, float(self.case.exit.z)), (0.0, 0.0, 1.0)

@@ -289,7 +289,7 @@ class ChuteSegmentScene(ChuteScene):
         return MomentumBudget(np.array([z0, z0 + L]), axis=2, start_time=case.measurements.start_time,
                               wall_names=names)
 
-    def exit_mask(self, pos):
+    def exit_plane(self):
         return None
 
     def _count_impulse(self, value: float = 0.0) -> None:
