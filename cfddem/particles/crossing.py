@@ -27,8 +27,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import numpy as np
 
+from cfddem._jit import kernel
 from cfddem.particles.walls import KIND_ANNULUS, KIND_CYLINDER, KIND_RECT
 
 
@@ -52,29 +55,58 @@ def crossing_mark(system) -> dict:
                 wgeom=system._wgeom.copy(), mesh=system._mt.placement())
 
 
-def _analytic_heights(g_now, g_old, cur, old):
-    """(h_now, h_old, both within the wall's extent) of the centres ``cur`` / ``old`` relative to
-    an analytic wall's geometry rows now and at the mark."""
-    kind = int(g_now[0])
-    n = g_now[4:7]
-    p_now, p_old = g_now[1:4], g_old[1:4]
-    h_now = (cur - p_now) @ n
-    h_old = (old - p_old) @ n
-    within = np.ones(len(cur), bool)
-    if kind == KIND_CYLINDER:  # signed distance from the ring surface, > 0 on the particles' side
-        sg = 1.0 if g_now[7] < 0.0 else -1.0
-        rc, hh = g_now[13], g_now[14]
-        within = (np.abs(h_now) <= hh) & (np.abs(h_old) <= hh)
-        h_now, h_old = (sg * (rc - np.linalg.norm(q - p - np.outer(h, n), axis=1))
-                        for q, p, h in ((cur, p_now, h_now), (old, p_old, h_old)))
-    elif kind == KIND_ANNULUS:
-        for q, p, h in ((cur, p_now, h_now), (old, p_old, h_old)):
-            rq = np.linalg.norm(q - p - np.outer(h, n), axis=1)
-            within &= (rq >= g_now[13]) & (rq <= g_now[14])
-    elif kind == KIND_RECT:
-        for q, p in ((cur, p_now), (old, p_old)):
-            within &= (np.abs((q - p) @ g_now[7:10]) <= g_now[13]) & (np.abs((q - p) @ g_now[10:13]) <= g_now[14])
-    return h_now, h_old, within
+@kernel
+def _analytic_crossing(n, ids, pos, rad, table, old_pos, wg, wg_old, nw, k_cyl, k_ann, k_rect):
+    """The first particle that went through an analytic wall (module docstring), walls in order
+    and particles in row order: (row, wall, depth of the centre behind it now), (-1, -1, 0) if
+    none.  ``table[id]``: the particle's row in ``old_pos`` (-1: not there at the mark).
+    Planes, rectangles and annuli: on the contact side at the mark (h >= 0), more than r
+    behind now, both centres over the face; cylinders: h the distance from the ring surface
+    (> 0 on the particles' side), both centres within the ends."""
+    for w in range(nw):
+        if wg[w, 0] < 0.0 or wg_old[w, 0] < 0.0:  # a gate open now or at the mark
+            continue
+        kind = int(wg[w, 0])
+        nx, ny, nz = wg[w, 4], wg[w, 5], wg[w, 6]
+        px, py, pz = wg[w, 1], wg[w, 2], wg[w, 3]
+        ox, oy, oz = wg_old[w, 1], wg_old[w, 2], wg_old[w, 3]
+        for i in range(n):
+            k = table[ids[i]]
+            if k < 0:
+                continue
+            r = rad[i]
+            cx, cy, cz = pos[i, 0] - px, pos[i, 1] - py, pos[i, 2] - pz
+            qx, qy, qz = old_pos[k, 0] - ox, old_pos[k, 1] - oy, old_pos[k, 2] - oz
+            h_now = cx * nx + cy * ny + cz * nz
+            h_old = qx * nx + qy * ny + qz * nz
+            if kind == k_cyl:
+                hh = wg[w, 14]
+                if abs(h_now) > hh or abs(h_old) > hh:
+                    continue
+                sg = 1.0 if wg[w, 7] < 0.0 else -1.0
+                rc = wg[w, 13]
+                a_now = math.sqrt((cx - h_now * nx) ** 2 + (cy - h_now * ny) ** 2 + (cz - h_now * nz) ** 2)
+                a_old = math.sqrt((qx - h_old * nx) ** 2 + (qy - h_old * ny) ** 2 + (qz - h_old * nz) ** 2)
+                h_now = sg * (rc - a_now)
+                h_old = sg * (rc - a_old)
+                if h_old >= 0.0 and h_now < -r:
+                    return i, w, -h_now
+                continue
+            if not (h_old >= 0.0 and h_now < -r):
+                continue
+            if kind == k_ann:
+                a_now = math.sqrt((cx - h_now * nx) ** 2 + (cy - h_now * ny) ** 2 + (cz - h_now * nz) ** 2)
+                a_old = math.sqrt((qx - h_old * nx) ** 2 + (qy - h_old * ny) ** 2 + (qz - h_old * nz) ** 2)
+                if not (wg[w, 13] <= a_now <= wg[w, 14] and wg[w, 13] <= a_old <= wg[w, 14]):
+                    continue
+            elif kind == k_rect:
+                if (abs(cx * wg[w, 7] + cy * wg[w, 8] + cz * wg[w, 9]) > wg[w, 13]
+                        or abs(cx * wg[w, 10] + cy * wg[w, 11] + cz * wg[w, 12]) > wg[w, 14]
+                        or abs(qx * wg[w, 7] + qy * wg[w, 8] + qz * wg[w, 9]) > wg[w, 13]
+                        or abs(qx * wg[w, 10] + qy * wg[w, 11] + qz * wg[w, 12]) > wg[w, 14]):
+                    continue
+            return i, w, -h_now
+    return -1, -1, 0.0
 
 
 def find_crossing(system, mark: dict, stats: dict | None = None) -> Crossing | None:
@@ -90,6 +122,16 @@ def find_crossing(system, mark: dict, stats: dict | None = None) -> Crossing | N
     top = int(max(pid.max(), ids.max())) + 1
     table = np.full(top, -1, np.int64)
     table[pid] = np.arange(len(pid))
+    if stats is not None:
+        stats["mesh_tests"] = 0
+    nw = len(system.walls)
+    if nw:
+        i, w, depth = _analytic_crossing(len(ids), ids, system.pos, rad, table, mark["pos"], system._wgeom,
+                                         mark["wgeom"], nw, KIND_CYLINDER, KIND_ANNULUS, KIND_RECT)
+        if i >= 0:
+            return Crossing(int(i), int(ids[i]), system.walls[w].name, -1, float(depth), mark["step"])
+    if not system.meshes:
+        return None
     k = table[ids]
     known = k >= 0
     if not known.any():
@@ -102,24 +144,6 @@ def find_crossing(system, mark: dict, stats: dict | None = None) -> Crossing | N
     def found(i, wall, tri, depth):
         return Crossing(int(at[i]), int(ids[at[i]]), wall, int(tri), float(depth), mark["step"])
 
-    wg = system._wgeom
-    for iw, w in enumerate(system.walls):
-        if wg[iw, 0] < 0.0 or mark["wgeom"][iw, 0] < 0.0:  # a gate open now or at the mark
-            continue
-        sel = None
-        if int(wg[iw, 0]) != KIND_CYLINDER:
-            # the plane heights first (two products); the extent only for the few behind the plane
-            n = wg[iw, 4:7]
-            sel = np.flatnonzero(((old - mark["wgeom"][iw, 1:4]) @ n >= 0.0) & ((cur - wg[iw, 1:4]) @ n < -r))
-            if not len(sel):
-                continue
-        c_, o_, r_ = (cur, old, r) if sel is None else (cur[sel], old[sel], r[sel])
-        h_now, h_old, within = _analytic_heights(wg[iw], mark["wgeom"][iw], c_, o_)
-        crossed = (h_old >= 0.0) & (h_now < -r_) & within
-        if crossed.any():
-            j = int(np.flatnonzero(crossed)[0])
-            i = j if sel is None else int(sel[j])
-            return found(i, w.name, -1, -h_now[j])
     mt = system._mt
     before = mark["mesh"]
     switched = {e[1] for e in mt.events[before["next_event"]: mt.next_event]}
