@@ -394,7 +394,19 @@ class ParticleSystem:
         rad = np.ascontiguousarray(np.broadcast_to(np.asarray(radius, float), (m,)))
         out = np.zeros(m, np.bool_)
         if m:
-            it.overlap_check(self._pos, self._radius, self.n, pos, rad, m, self._plen, out)
+            n = self.n
+            pp, rr = self._pos, self._radius
+            if n > 4 * m:  # only the particles in the new spheres' box (non-periodic axes) can touch them
+                reach = float(rad.max()) + (float(self._radius[:n].max()) if n else 0.0)
+                near = np.ones(n, bool)
+                for a in range(3):
+                    if self._periodic[a]:
+                        continue
+                    x = self._pos[:n, a]
+                    near &= (x > pos[:, a].min() - reach) & (x < pos[:, a].max() + reach)
+                pp, rr = np.ascontiguousarray(self._pos[:n][near]), np.ascontiguousarray(self._radius[:n][near])
+                n = len(rr)
+            it.overlap_check(pp, rr, n, pos, rad, m, self._plen, out)
         return out
 
     def _serial(self, n: int) -> bool:

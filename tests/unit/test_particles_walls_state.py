@@ -153,3 +153,22 @@ def test_insertion_overlaps_and_removal_bookkeeping():
     new = s.add_particles([p_free], 0.0, 1.4e-3, RHO)
     assert new[0] == n0 + 1  # ids never reused
     assert s.step(100).ok
+
+
+def test_overlaps_box_filter_matches_the_full_search():
+    """overlaps() searches only the existing particles in the new spheres' box when there are
+    many: the same answer as the search over all of them, periodic axes included."""
+    from cfddem.particles import integrate as it
+
+    rng = np.random.default_rng(2)
+    s = ParticleSystem(pp=C, walls=[], dt=1e-5, periodic=(None, None, (0.0, 0.02)))
+    pos = rng.uniform([0, 0, 0], [0.05, 0.05, 0.02], (3000, 3))
+    keep = ~s.overlaps(pos, 1e-3)  # (new spheres checked against each other too)
+    s.add_particles(pos[keep], 0.0, 1e-3, RHO)
+    new = rng.uniform([0.01, 0.01, -0.001], [0.02, 0.03, 0.021], (60, 3))  # some across the period
+    rad = rng.uniform(8e-4, 1.5e-3, 60)
+    full = np.zeros(60, bool)
+    it.overlap_check(s._pos, s._radius, s.n, new, rad, 60, s._plen, full)
+    got = s.overlaps(new, rad)
+    assert s.n > 4 * 60 and 5 < full.sum() < 55
+    assert np.array_equal(got, full)
