@@ -186,6 +186,35 @@ def _wrap(x, lo, plen):
     return x
 
 
+@kernel
+def affine_moments(pos, vel, n, free, nf, row, out_xx, out_xv):
+    """The normal equations of the least-squares fit v ~ c + G (x - x_0) over the ``nf`` axes
+    ``free``: ``out_xx`` ((nf+1) x (nf+1)) = A^T A and ``out_xv`` ((nf+1) x 3) = A^T V with
+    A = [1, x - x_0], x_0 the first particle's position (a shift that keeps the sums well
+    scaled).  ``row``: scratch of 4.  One serial pass (the same sums for any thread count)."""
+    m = nf + 1
+    for a in range(m):
+        for b in range(m):
+            out_xx[a, b] = 0.0
+        for c in range(3):
+            out_xv[a, c] = 0.0
+    if n == 0:
+        return
+    for i in range(n):
+        row[0] = 1.0
+        for a in range(nf):
+            row[a + 1] = pos[i, free[a]] - pos[0, free[a]]
+        for a in range(m):
+            ra = row[a]
+            for b in range(a, m):
+                out_xx[a, b] += ra * row[b]
+            for c in range(3):
+                out_xv[a, c] += ra * vel[i, c]
+    for a in range(m):
+        for b in range(a):
+            out_xx[a, b] = out_xx[b, a]
+
+
 @parallel_kernel
 def pair_search(pos, radius, n, skin, lo, size, nc, periodic_len, cell_start, starts, slots, tmp, counts):
     """The partners j > i of particle i within R_i + R_j + skin, in scan order, into ``tmp``:

@@ -526,13 +526,16 @@ class ParticleSystem:
         self._ugrad_norm = 0.0
         if self._has_clumps() or n < 16:
             return
-        free = [a for a in range(3) if not self._periodic[a]]
-        x = self._pos[:n, free]
-        c = x.mean(axis=0)
-        A = np.empty((n, len(free) + 1))
-        A[:, 0] = 1.0
-        A[:, 1:] = x - c
-        coef, *_ = np.linalg.lstsq(A, self._vel[:n], rcond=None)
+        free = np.array([a for a in range(3) if not self._periodic[a]], np.int64)
+        m = len(free) + 1
+        xx, xv = np.empty((m, m)), np.empty((m, 3))
+        # the normal equations in one compiled pass (np.linalg.lstsq on the n x m matrix took
+        # ~2 ms of a 19 ms rebuild at 30,000 particles); any field makes an exact test
+        nb.affine_moments(self._pos, self._vel, n, free, len(free), np.empty(4), xx, xv)
+        scale = np.sqrt(np.maximum(np.diag(xx), 1e-300))  # columns scaled to unit norm
+        coef, *_ = np.linalg.lstsq(xx / np.outer(scale, scale), xv / scale[:, None], rcond=1e-12)
+        coef = coef / scale[:, None]
+        c = self._pos[0, free]
         G = np.zeros((3, 3))
         G[:, free] = coef[1:].T
         u0 = coef[0] - G[:, free] @ c

@@ -89,3 +89,29 @@ def test_bit_identical_with_1_and_2_threads():
             assert np.array_equal(a[k], b[k]), k
         else:
             assert a[k] == b[k], k
+
+
+@pytest.mark.parametrize("periodic", [(None, None, None), ((0.0, 0.05), None, None), (None, (0.0, 0.1), (0.0, 0.02))])
+def test_rebuild_velocity_field_is_the_least_squares_fit(periodic):
+    """The affine field fitted at a rebuild (normal equations from one compiled pass) is the
+    least-squares fit of numpy's lstsq on the particles' velocities, constant along periodic axes."""
+    from cfddem.particles import LinearContact, ParticleSystem
+
+    rng = np.random.default_rng(3)
+    c = LinearContact(k_n=1000.0, e_n=0.9, e_t=0.5, mu=0.3)
+    s = ParticleSystem(pp=c, walls=[], dt=1e-5, periodic=periodic)
+    pos = rng.uniform([0.0, 0.0, 0.0], [0.05, 0.1, 0.02], (500, 3)) + np.array([0.3, -0.2, 0.7]) * [
+        p is None for p in periodic]
+    G_true = rng.normal(0.0, 20.0, (3, 3))
+    vel = np.array([0.5, -1.0, 2.0]) + pos @ G_true.T + rng.normal(0.0, 0.05, (500, 3))
+    s.add_particles(pos, vel, 1e-4, 2500.0)
+    s._rebuild()
+    free = [a for a in range(3) if periodic[a] is None]
+    x = s.pos[:, free]
+    A = np.c_[np.ones(len(x)), x]
+    coef, *_ = np.linalg.lstsq(A, s.vel, rcond=None)
+    G = np.zeros((3, 3))
+    G[:, free] = coef[1:].T
+    np.testing.assert_allclose(s._ugrad, G, rtol=0, atol=1e-9 * np.abs(G).max())
+    np.testing.assert_allclose(s._ubar, coef[0], rtol=0, atol=1e-9 * np.abs(s.vel).max())
+    assert np.all(s._ugrad[:, [a for a in range(3) if periodic[a] is not None]] == 0.0)
