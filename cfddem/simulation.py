@@ -32,6 +32,7 @@ from .scenes import scene_of
 from .scenes.common import frame_omega, gravity_vector, initial_particles, mesh_wall, wall_specs, walls_bounding_box
 
 RUN_MARKER = "run.json"  # written by every run: how we recognise our own run folders
+RESULTS_FLUSH_INTERVAL = 2.0  # s of wall time between rewrites of results.h5 during a run
 
 
 @dataclass
@@ -124,6 +125,7 @@ class Simulation:
         self.echo = echo
         self.show_progress = progress
         self.dt = case.time.dt
+        self._results = None  # the open results.h5 writer during run()
         self._exit_every = max(1, int(round(1e-3 / self.dt)))  # steps between exit/lost checks (~1 ms)
         self.timings = {"particles": 0.0, "inlet_exit": 0.0, "measurements": 0.0, "output": 0.0,
                         "checkpoints": 0.0, "gas": 0.0, "coupling": 0.0}
@@ -252,6 +254,8 @@ class Simulation:
         from .io.checkpoint import write_checkpoint
 
         t0 = _time.perf_counter()
+        if self._results is not None:  # the rows up to the checkpoint are on disk before it is
+            self._results.flush()
         path = write_checkpoint(self.out / "checkpoints", self.system.step_count, self.get_state(),
                                 keep=self.case.checkpoint.keep)
         self.timings["checkpoints"] += _time.perf_counter() - t0
@@ -307,6 +311,7 @@ class Simulation:
             quads = [q for w in self.walls for q in w.quads(size=0.1)]
             if quads:
                 pv.set_walls(quads)
+        self._results = res
         return res, pv
 
     def _branch_from(self, src: Path) -> str:
@@ -430,7 +435,7 @@ class Simulation:
                          meshes=sys_.mesh_surfaces() if sys_.nm else None)
                 sch["vtk"].advance(t, dt)
                 last["vtk"] = sys_.step_count
-            res.flush()
+            res.flush(min_interval=0.0 if final else RESULTS_FLUSH_INTERVAL)
             self.timings["output"] += _time.perf_counter() - t0
 
         try:
@@ -669,6 +674,7 @@ class Simulation:
         if self.gas is not None:
             res.write_metadata(**self.gas.run_stats())
         res.close()
+        self._results = None
         (self.out / RUN_MARKER).write_text(json.dumps({"program": "cfddem", "version": __version__,
                                                        "case": self.case.name, **summary.to_dict()}, indent=1))
         self.log.info("%s at t = %.6g s after %d steps, %.1f s wall (%s)", status, s.time, s.step_count, wall,

@@ -85,3 +85,21 @@ def test_measurements_groups_scalars_and_overwrite(tmp_path):
 def test_bad_mode(tmp_path):
     with pytest.raises(ValueError):
         ResultsFile(tmp_path / "x.h5", mode="r")
+
+
+def test_flush_min_interval_defers_the_rewrite(tmp_path):
+    """flush(min_interval) skips the rewrite within that much wall time of the last one; a plain
+    flush (and close) always writes what is pending."""
+    p = tmp_path / "results.h5"
+    rf = ResultsFile(p)
+    rf.append_series(time=0.0, mass_out=0.0)
+    rf.flush()
+    rf.append_series(time=0.5, mass_out=1.0)
+    rf.flush(min_interval=3600.0)
+    assert read_series(p)["time"].tolist() == [0.0]  # deferred
+    rf.flush(min_interval=0.0)
+    assert read_series(p)["time"].tolist() == [0.0, 0.5]
+    rf.append_series(time=1.0, mass_out=2.0)
+    rf.flush(min_interval=3600.0)
+    rf.close()
+    assert read_series(p)["time"].tolist() == [0.0, 0.5, 1.0]
