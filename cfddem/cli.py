@@ -166,8 +166,10 @@ def _dispatch(args) -> int:
             print(f"cfddem: {summary.message}")
         if comparison is not None:
             c = comparison
+            jit = (" (numba's first compilation of the kernels left out)"
+                   if max(c.get("compile_time_a", 0.0), c.get("compile_time_b", 0.0)) >= 0.1 else "")
             print(f"cfddem: gas against no gas: {c['headline']}; the gas costs {c['wall_time_ratio']:.2f}x "
-                  f"the wall time; report: {summary.out_dir}/compare/report.html")
+                  f"the wall time{jit}; report: {summary.out_dir}/compare/report.html")
         if summary.status == "interrupted":
             import signal as _signal
 

@@ -31,6 +31,8 @@ from .particles.contact import ContactLaw, contact_law
 from .scenes import scene_of
 from .scenes.common import frame_omega, gravity_vector, initial_particles, mesh_wall, wall_specs, walls_bounding_box
 
+from numba.core import event as _nb_event  # noqa: E402  (after cfddem._jit: it sets numba's threading first)
+
 RUN_MARKER = "run.json"  # written by every run: how we recognise our own run folders
 RESULTS_FLUSH_INTERVAL = 2.0  # s of wall time between rewrites of results.h5 during a run
 
@@ -127,8 +129,11 @@ class Simulation:
         self.dt = case.time.dt
         self._results = None  # the open results.h5 writer during run()
         self._exit_every = max(1, int(round(1e-3 / self.dt)))  # steps between exit/lost checks (~1 ms)
+        # wall time per part of the loop; "compile": numba's compilation of kernels met for the
+        # first time (on a fresh machine or after a code change), already inside the other parts
         self.timings = {"particles": 0.0, "inlet_exit": 0.0, "measurements": 0.0, "output": 0.0,
-                        "checkpoints": 0.0, "gas": 0.0, "coupling": 0.0}
+                        "checkpoints": 0.0, "gas": 0.0, "coupling": 0.0, "compile": 0.0}
+        self._jit_timer = None
         self.counters = {"mass_out": 0.0, "count_out": 0, "mass_lost": 0.0, "count_lost": 0}
         self._built = False
         self._signal: int | None = None
@@ -391,6 +396,8 @@ class Simulation:
                 log.info("gas: %s", line)
         check_time_step(case, log=log)
         t_wall0 = self._t_wall0 = _time.perf_counter()
+        self._jit_timer = _nb_event.TimingListener()  # numba's compilations from here to _finish
+        _nb_event.register("numba:compile", self._jit_timer)
         dt = self.dt
         sys_ = self.system
         sch = self.schedules
@@ -662,6 +669,11 @@ class Simulation:
                 self.gas.write_measurements(res)
             except Exception as e:
                 self.log.error("could not store the gas measurements: %s", e)
+        if self._jit_timer is not None:
+            _nb_event.unregister("numba:compile", self._jit_timer)
+            if self._jit_timer.done:
+                self.timings["compile"] += self._jit_timer.duration
+            self._jit_timer = None
         timings = dict(self.timings)
         timings["total"] = wall
         summary = RunSummary(status=status, out_dir=str(self.out), time=s.time, steps=s.step_count,
@@ -677,8 +689,10 @@ class Simulation:
         self._results = None
         (self.out / RUN_MARKER).write_text(json.dumps({"program": "cfddem", "version": __version__,
                                                        "case": self.case.name, **summary.to_dict()}, indent=1))
-        self.log.info("%s at t = %.6g s after %d steps, %.1f s wall (%s)", status, s.time, s.step_count, wall,
-                      ", ".join(f"{k} {v:.1f} s" for k, v in timings.items()))
+        self.log.info("%s at t = %.6g s after %d steps, %.1f s wall (%s)%s", status, s.time, s.step_count, wall,
+                      ", ".join(f"{k} {v:.1f} s" for k, v in timings.items() if k != "compile"),
+                      f"; numba compiled kernels for {timings['compile']:.1f} s of it" if timings["compile"] >= 0.1
+                      else "")
         if message:
             self.log.info(message)
         if s.wall_back_count:

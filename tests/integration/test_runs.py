@@ -284,3 +284,35 @@ def test_checkpoint_every_steps(tmp_path):
     assert s.status == "done" and s.steps == 500
     names = sorted(p.name for p in (out / "checkpoints").glob("ckpt_*.h5"))
     assert names == ["ckpt_000000000200.h5", "ckpt_000000000400.h5"]
+
+
+def test_numba_compilation_inside_the_loop_is_timed(tmp_path):
+    """A kernel compiled for the first time inside the time loop (here one called from a step
+    hook) is counted in ``timings["compile"]`` (inside the other parts and the total); the
+    compare report's wall-time ratio leaves it out."""
+    import numba
+
+    d = box_case(tmp_path, end=0.01)
+    sim = Simulation(load_case(d), tmp_path / "run", echo=False, progress=False)
+    sim.build()
+
+    @numba.njit(cache=False)
+    def fresh(x):  # a new function object: compiled at its first call, never from a cache
+        s = 0.0
+        for i in range(x.shape[0]):
+            s += np.sin(x[i]) * np.cos(x[i]) + np.sqrt(abs(x[i]))
+        return s
+
+    calls = []
+    sim.system.step_hook = lambda s: calls.append(fresh(s.pos[:, 0]))
+    res = sim.run()
+    assert res.status == "done" and len(calls) == res.steps
+    c = res.timings["compile"]
+    assert 0.02 < c < res.wall_time
+    with h5py.File(tmp_path / "run" / "results.h5", "r") as h:
+        assert h["metadata"].attrs["time_compile"] == pytest.approx(c)
+    # a second run of the same process compiles nothing new
+    sim2 = Simulation(load_case(d), tmp_path / "run2", echo=False, progress=False)
+    sim2.build()
+    sim2.system.step_hook = lambda s: calls.append(fresh(s.pos[:, 0]))
+    assert sim2.run().timings["compile"] < 0.01

@@ -11,7 +11,7 @@ from cfddem.io.results import ResultsFile
 from cfddem.measure.chute import ChuteMeasurements
 
 
-def fake_run(folder, speed, gas, wall, rpm=16.0):
+def fake_run(folder, speed, gas, wall, rpm=16.0, compile_time=None):
     """A run folder whose particles move at `speed` m/s along z everywhere."""
     folder.mkdir(parents=True)
     rng = np.random.default_rng(0)
@@ -35,6 +35,8 @@ def fake_run(folder, speed, gas, wall, rpm=16.0):
                                            "z": np.linspace(-0.097, 0.797, 150)})
         res.write_metadata(wall_time=wall, time_particles=0.8 * wall, time_gas=0.15 * wall if gas else 0.0,
                            time_output=0.05 * wall)
+        if compile_time is not None:
+            res.write_metadata(time_compile=compile_time)
         if gas:  # the gas's budget as GasBudget writes it (terms in N; a few of them)
             terms = {"drag": 1.5e-3, "gravity": 1.8e-2, "pressure_z-": -2.0e-2, "flux_z-": 1.2e-3, "shear_y-": -2.0e-4}
             gb = dict(terms, storage=5e-4, residual=-3e-15, residual_relative=1.5e-13, particle_drag=-1.5e-3,
@@ -83,6 +85,21 @@ def test_compare_report_and_summary(tmp_path):
     assert "closes to 1.5e-13 of the largest term" in md
     assert s["gas_budget_b"]["shear_y-"] == pytest.approx(-2e-4) and "gas_budget_a" not in s
     assert s["gas_budget_residual_relative_b"] == pytest.approx(1.5e-13)
+
+
+def test_compare_leaves_numba_compilation_out_of_the_cost_ratio(tmp_path):
+    """The first run on a fresh machine compiles the kernels: the ratio compares the wall times
+    without it, and the report says how much it was."""
+    a = fake_run(tmp_path / "nogas", 2.0, False, 100.0)  # written before compilation was timed
+    b = fake_run(tmp_path / "gas", 1.9, True, 180.0, compile_time=60.0)
+    out = tmp_path / "cmp"
+    p = subprocess.run([sys.executable, "-m", "cfddem.cli", "compare", str(a), str(b), "--out", str(out)],
+                       capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    s = json.loads((out / "summary.json").read_text())
+    assert s["wall_time_ratio"] == pytest.approx(1.2)
+    assert s["compile_time_a"] == 0.0 and s["compile_time_b"] == 60.0
+    assert "compilation of the kernels: 0.0 s in A, 60.0 s in B" in (out / "report.md").read_text()
 
 
 def test_compare_refuses_runs_without_measurements(tmp_path):
