@@ -50,14 +50,19 @@ def fake_run(folder, speed, gas, wall, rpm=16.0, compile_time=None):
     return folder
 
 
+def compare_summary(a, b, out):
+    """``cfddem compare A B --out OUT`` (it must succeed); its summary.json."""
+    p = subprocess.run([sys.executable, "-m", "cfddem.cli", "compare", str(a), str(b), "--out", str(out)],
+                       capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    return json.loads((out / "summary.json").read_text())
+
+
 def test_compare_report_and_summary(tmp_path):
     a = fake_run(tmp_path / "nogas", 2.0, False, 100.0)
     b = fake_run(tmp_path / "gas", 1.9, True, 120.0)
     out = tmp_path / "cmp"
-    p = subprocess.run([sys.executable, "-m", "cfddem.cli", "compare", str(a), str(b), "--out", str(out)],
-                       capture_output=True, text=True)
-    assert p.returncode == 0, p.stderr
-    s = json.loads((out / "summary.json").read_text())
+    s = compare_summary(a, b, out)
     assert s["velocity_end_a"] == pytest.approx(2.0)
     assert s["velocity_end_b"] == pytest.approx(1.9)
     assert s["relative_difference_end"] == pytest.approx(-0.05)
@@ -93,10 +98,7 @@ def test_compare_leaves_numba_compilation_out_of_the_cost_ratio(tmp_path):
     a = fake_run(tmp_path / "nogas", 2.0, False, 100.0)  # written before compilation was timed
     b = fake_run(tmp_path / "gas", 1.9, True, 180.0, compile_time=60.0)
     out = tmp_path / "cmp"
-    p = subprocess.run([sys.executable, "-m", "cfddem.cli", "compare", str(a), str(b), "--out", str(out)],
-                       capture_output=True, text=True)
-    assert p.returncode == 0, p.stderr
-    s = json.loads((out / "summary.json").read_text())
+    s = compare_summary(a, b, out)
     assert s["wall_time_ratio"] == pytest.approx(1.2)
     assert s["compile_time_a"] == 0.0 and s["compile_time_b"] == 60.0
     assert "compilation of the kernels: 0.0 s in A, 60.0 s in B" in (out / "report.md").read_text()
