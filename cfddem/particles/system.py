@@ -825,7 +825,8 @@ class ParticleSystem:
                 self._move_meshes(self.time + dt)
             if self._need_rebuild or self._expired(m2, disp):
                 if self._sink is not None and self.drain_sink()[0]:
-                    # the rows left mid-step (their forces are evaluated below, after the rebuild)
+                    # they left mid-step: the forces of the rows that stay are evaluated below,
+                    # after the rebuild, as in any step (no refresh needed)
                     self._forces_stale = False
                     if self.n == 0:  # the last ones left: the walls have moved, the clock goes on
                         self._forces_stale = True
