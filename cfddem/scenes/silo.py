@@ -927,8 +927,9 @@ class SiloScene(Scene):
         W, T, H = prof["W"], prof["T"], prof["H"]
         zc = janssen_length(W, T, K, mu_side, mu_front)
         y = prof["height"]
-        hydro = np.where(y < 0.0, np.nan, np.where(y < H, prof["rho_b"] * g * (H - y), 0.0))
-        jz = np.where(y < 0.0, np.nan, janssen(y, H, prof["rho_b"] * g, W, T, K, mu_side, mu_front))
+        gamma = prof["rho_b"] * g
+        hydro = np.where(y < 0.0, np.nan, janssen(y, H, gamma, W, T, K, 0.0, 0.0))  # frictionless walls
+        jz = np.where(y < 0.0, np.nan, janssen(y, H, gamma, W, T, K, mu_side, mu_front))
         px, pz = prof["lateral"]
         with np.errstate(invalid="ignore", divide="ignore"):
             kx = np.where(prof["pressure"] > 0, px / prof["pressure"], np.nan)
