@@ -64,3 +64,23 @@ def test_study_command_writes_table_csv_and_charts(root, tmp_path):
         assert float(r["wall_time"]) > 0
     md = (out / "front-back.md").read_text()
     assert "| front/back mu 0.3 |" in md and "| periodic depth |" in md and "B at 5 mm (mm)" in md
+
+
+def test_end_of_fill_stress_against_janssen_and_hydrostatic(root, tmp_path, one_numba_thread):
+    """silo.stress_profile: at the gate opening the scene stores the coarse-grained vertical
+    pressure with the hydrostatic line rho_b g (H - y) and Janssen's curve, which lies below it
+    (walls with friction carry weight) and meets it at the top."""
+    ov = [a for a in TINY if a != "--set"] + ["time.end_time=0.16", "silo.stress_profile=true"]
+    sim = Simulation(load_case(root / "cases" / "silo_thesis_small", overrides=ov), tmp_path / "out",
+                     echo=False, progress=False)
+    assert sim.run().status == "done" and sim.scene.gate_open
+    st = sim.scene.stress
+    y, H, g = st["y"], st["H"], sim.case.gravity.g
+    inside = (y >= 0.0) & (y < H)
+    assert inside.sum() >= 3 and 0.005 < H < 0.05
+    np.testing.assert_allclose(st["hydrostatic"][inside], st["rho_b"] * g * (H - y[inside]), rtol=1e-12)
+    assert np.all(st["janssen"][inside] <= st["hydrostatic"][inside] * (1 + 1e-12))
+    assert np.all(st["janssen"][inside] > 0.0) and st["z_c"] > 0.0
+    band = inside & (y > 0.1 * H) & (y < 0.5 * H)
+    ratio = st["pressure"][band] / st["hydrostatic"][band]
+    assert band.any() and np.all((ratio > 0.3) & (ratio < 1.3))  # a 150-particle bed: the weight, roughly
