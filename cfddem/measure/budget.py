@@ -45,7 +45,7 @@ averages.  (Sampling would not do: every layer a sluice inserts changes the poro
 and the incompressible gas answers with a pressure pulse along the whole domain for one gas
 step, much larger than the mean force.)
 
-Cost: one serial pass over the particles per step from the window's first measurement time on:
+Cost: one pass over the particles per step (blocks over the threads) from the window's first measurement time on:
 about 13 % of a particle step of the 16 rpm chute at one thread (docs/outputs.md).
 """
 
@@ -53,7 +53,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._jit import kernel
+from .._jit import kernel, parallel_kernel, prange
 from .stats import block_error
 
 TERMS = ("gravity", "walls", "contacts", "drag", "pressure", "coriolis", "centrifugal", "flux")
@@ -81,18 +81,16 @@ def _bin_of(z, edges):
     return lo
 
 
+#: particles per block of :func:`budget_step`: each block sums into its own accumulators in index
+#: order and the blocks are added in block order, so the sums do not depend on the thread count
+BUDGET_BLOCK = 4096
+
+
 @kernel
-def budget_step(n, ids, pos, vel, mass, force, ext, held, wfw, nw, has_mesh, mstart, ms_mesh, ms_fw,
-                gravity, omega, axis_point, a, edges, prev, dt, init, acc, acc_wall, acc_mesh):
-    """One step of the budget (module doc): every free particle's forces along axis ``a``
-    times ``dt`` added to its bin's rows of ``acc`` (rows in the order of :data:`STEPPED`:
-    gravity, centrifugal, coriolis, contacts, walls, external; row 6 the flux), the walls' to
-    ``acc_wall`` (wall, bin) and ``acc_mesh`` (mesh, bin); every particle whose bin differs
-    from ``prev[id]`` (the bin at the last call, -1 outside or held) moves m v_a from the old
-    bin's flux to the new one's.  ``init``: only record the bins.  Forces are those of the
-    system's arrays (``force`` without the external and Coriolis forces, ``wfw`` the force on
-    each analytic wall, ``ms_fw`` on each mesh slot)."""
-    for i in range(n):
+def _budget_range(i0, i1, ids, pos, vel, mass, force, ext, held, wfw, nw, has_mesh, mstart, ms_mesh, ms_fw,
+                  gravity, omega, axis_point, a, edges, prev, dt, init, acc, acc_wall, acc_mesh):
+    """:func:`budget_step` for the particles [i0, i1) into the accumulators given."""
+    for i in range(i0, i1):
         b = -1
         if held[i] != 1:
             b = _bin_of(pos[i, a], edges)
@@ -148,6 +146,78 @@ def budget_step(n, ids, pos, vel, mass, force, ext, held, wfw, nw, has_mesh, mst
         acc[5, b] += dt * ext[i, a]
 
 
+@parallel_kernel
+def budget_step(n, ids, pos, vel, mass, force, ext, held, wfw, nw, has_mesh, mstart, ms_mesh, ms_fw,
+                gravity, omega, axis_point, a, edges, prev, dt, init, acc, acc_wall, acc_mesh, blk, bacc, bwall, bmesh):
+    """One step of the budget (module doc): every free particle's forces along axis ``a``
+    times ``dt`` added to its bin's rows of ``acc`` (rows in the order of :data:`STEPPED`:
+    gravity, centrifugal, coriolis, contacts, walls, external; row 6 the flux), the walls' to
+    ``acc_wall`` (wall, bin) and ``acc_mesh`` (mesh, bin); every particle whose bin differs
+    from ``prev[id]`` (the bin at the last call, -1 outside or held) moves m v_a from the old
+    bin's flux to the new one's.  ``init``: only record the bins.  Forces are those of the
+    system's arrays (``force`` without the external and Coriolis forces, ``wfw`` the force on
+    each analytic wall, ``ms_fw`` on each mesh slot).
+
+    The particles go in blocks of ``blk`` over the threads, each block into its own slice of
+    the work arrays ``bacc``, ``bwall``, ``bmesh`` (at least ceil(n / blk) blocks), which are
+    then added in block order: the same sums for any thread count."""
+    nblk = (n + blk - 1) // blk
+    # (explicit loops: an array expression in a parallel kernel becomes a parallel loop of its
+    # own, one thread launch each, which cost more than the whole pass)
+    for q in range(nblk):
+        _zero(bacc[q])
+        _zero(bwall[q])
+        _zero(bmesh[q])
+    for q in prange(nblk):
+        _budget_range(q * blk, min(n, (q + 1) * blk), ids, pos, vel, mass, force, ext, held, wfw, nw, has_mesh,
+                      mstart, ms_mesh, ms_fw, gravity, omega, axis_point, a, edges, prev, dt, init, bacc[q],
+                      bwall[q], bmesh[q])
+    for q in range(nblk):
+        _add(acc, bacc[q])
+        _add(acc_wall, bwall[q])
+        _add(acc_mesh, bmesh[q])
+
+
+@kernel
+def _zero(a):
+    for r in range(a.shape[0]):
+        for c in range(a.shape[1]):
+            a[r, c] = 0.0
+
+
+@kernel
+def _add(a, b):
+    for r in range(a.shape[0]):
+        for c in range(a.shape[1]):
+            a[r, c] += b[r, c]
+
+
+@kernel
+def add_gas_kernel(pos, held, drag, pressure, keff, eps, with_slip, a, edges, slip_edges, sums, tot, slip):
+    """One gas step of :meth:`MomentumBudget.add_gas` in one serial pass: the free particles'
+    drag and pressure forces along axis ``a`` summed per bin into ``sums`` (2, n_bins) and over
+    all free particles into ``tot`` (2,); with ``with_slip``, the slip drag/keff of the binned
+    particles with keff > 0 summed with their count per porosity class (``eps`` against
+    ``slip_edges``: below the first, between, from the second on) into ``slip`` (3, 2)."""
+    for i in range(pos.shape[0]):
+        if held[i]:
+            continue
+        fd = drag[i, a]
+        fp = pressure[i, a]
+        tot[0] += fd
+        tot[1] += fp
+        b = _bin_of(pos[i, a], edges)
+        if b < 0:
+            continue
+        sums[0, b] += fd
+        sums[1, b] += fp
+        if with_slip and keff[i] > 0.0:
+            e = eps[i]
+            j = 0 if e < slip_edges[0] else (1 if e < slip_edges[1] else 2)
+            slip[j, 0] += fd / keff[i]
+            slip[j, 1] += 1.0
+
+
 class MomentumBudget:
     """Momentum budget of the particles in bins ``edges`` along ``axis`` (module doc).
 
@@ -175,6 +245,10 @@ class MomentumBudget:
         self._mesh_acc = np.zeros((0, self.n_bins))
         self._step_t = 0.0  # time accumulated since the last sample
         self._prev = np.full(0, -1, np.int64)  # the bin of each particle id at the last step (-1: none)
+        # per-block work arrays of budget_step (grown as needed)
+        self._blk_acc = np.zeros((0, len(STEPPED), self.n_bins))
+        self._blk_wall = np.zeros((0, 0, self.n_bins))
+        self._blk_mesh = np.zeros((0, 0, self.n_bins))
         # gas forces: impulse per bin since the last sample, and per-sample-interval means
         self._acc = {"drag": np.zeros(self.n_bins), "pressure": np.zeros(self.n_bins)}
         self._acc_all = np.zeros(2)  # impulse on every free particle, in the bins or not
@@ -205,9 +279,16 @@ class MomentumBudget:
         s = system
         self._grow(s)
         nm = s.nm > 0
+        nblk = max(1, -(-s.n // BUDGET_BLOCK))
+        if self._blk_acc.shape[0] < nblk or self._blk_wall.shape[1] != s.nw or self._blk_mesh.shape[1] != s.nm:
+            nb = max(nblk, self._blk_acc.shape[0])
+            self._blk_acc = np.zeros((nb, len(STEPPED), self.n_bins))
+            self._blk_wall = np.zeros((nb, s.nw, self.n_bins))
+            self._blk_mesh = np.zeros((nb, s.nm, self.n_bins))
         budget_step(s.n, s._ids, s._pos, s._vel, s._mass, s._force, s._ext_force, s._held, s._wfw, s.nw, nm,
                     s._mstart, s._ms_mesh, s._ms_fw, s.gravity, s.frame_omega, s.axis_point, self.axis,
-                    self.edges, self._prev, s.dt, init, self._step_acc, self._wall_acc, self._mesh_acc)
+                    self.edges, self._prev, s.dt, init, self._step_acc, self._wall_acc, self._mesh_acc,
+                    BUDGET_BLOCK, self._blk_acc, self._blk_wall, self._blk_mesh)
 
     def accumulate(self, system) -> None:
         """One step's terms (the system's ``step_hook``; module doc); nothing before the first
@@ -244,24 +325,24 @@ class MomentumBudget:
         ``dt_gas``; ``held`` (n,) bool: not applied), binned by ``pos`` (module doc).  With the
         drag coefficients ``keff`` (n,) (drag = keff (u - v)) and the porosities ``eps`` (n,) at
         the particles, also the mean slip u - v along the axis of the particles in the bed
-        (eps < 0.6), the surface layer (0.6 <= eps < 0.9) and dilute (eps >= 0.9) (:data:`SLIP_CLASSES`)."""
+        (eps < 0.6), the surface layer (0.6 <= eps < 0.9) and dilute (eps >= 0.9) (:data:`SLIP_CLASSES`).
+        One compiled serial pass (:func:`add_gas_kernel`)."""
         if not self.wants_gas(time):
             return
-        a = self.axis
-        b = self._bins(np.asarray(pos)[:, a], ~np.asarray(held, bool))
-        if keff is not None and eps is not None and len(b):
-            k = np.asarray(keff, float)
-            ok = (k > 0) & (b >= 0)
-            slip = np.zeros(len(k))
-            slip[ok] = np.asarray(drag)[ok, a] / k[ok]
-            cls = np.digitize(np.asarray(eps, float), SLIP_EDGES)
-            for j in range(len(SLIP_CLASSES)):
-                sel = ok & (cls == j)
-                self._slip[j] += dt_gas * np.array([slip[sel].sum(), sel.sum()])
-        self._acc["drag"] += dt_gas * self._bin_sum(b, np.asarray(drag)[:, a])
-        self._acc["pressure"] += dt_gas * self._bin_sum(b, np.asarray(pressure)[:, a])
-        free = ~np.asarray(held, bool)
-        self._acc_all += dt_gas * np.array([np.asarray(drag)[free, a].sum(), np.asarray(pressure)[free, a].sum()])
+        pos = np.asarray(pos, float)
+        n = pos.shape[0]
+        with_slip = keff is not None and eps is not None and n > 0
+        k = np.ascontiguousarray(keff, float) if with_slip else np.zeros(0)
+        e = np.ascontiguousarray(eps, float) if with_slip else np.zeros(0)
+        sums = np.zeros((2, self.n_bins))
+        tot = np.zeros(2)
+        slip = np.zeros((len(SLIP_CLASSES), 2))
+        add_gas_kernel(pos, np.ascontiguousarray(held, np.bool_), np.asarray(drag, float), np.asarray(pressure, float),
+                       k, e, with_slip, self.axis, self.edges, np.asarray(SLIP_EDGES, float), sums, tot, slip)
+        self._acc["drag"] += dt_gas * sums[0]
+        self._acc["pressure"] += dt_gas * sums[1]
+        self._slip += dt_gas * slip
+        self._acc_all += dt_gas * tot
         self._acc_t += dt_gas
         self._gas_t += dt_gas
 
