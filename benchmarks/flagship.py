@@ -2,12 +2,14 @@
 
     python benchmarks/flagship.py --checkpoint runs/dev/checkpoints/ckpt_X.h5 --duration 0.2 \\
         --a-tree /path/to/old/checkout --b-set time.dt=8e-5 --b-set gas.coupling_interval=4 \\
-        [--case cases/chute_16rpm] [--threads 2] [--rounds 2] [--out /tmp/flagship]
+        [--case cases/chute_16rpm] [--threads 2] [--rounds 2] [--out /tmp/flagship] \\
+        [--a-env GOMP_SPINCOUNT=0] [--b-env ...]
 
 Each side is ``cfddem run CASE`` from the checkpoint (``checkpoint.start_from``) for
 ``--duration`` seconds of flow, run from a code tree (``--a-tree``/``--b-tree``, default this
 checkout: ``python -m cfddem.cli`` with the tree as the working directory imports that tree's
-cfddem) with its own overrides (``--a-set``/``--b-set``, repeatable).  One untimed warm-up run per
+cfddem) with its own overrides (``--a-set``/``--b-set``, repeatable) and environment variables
+(``--a-env``/``--b-env`` KEY=VALUE, repeatable; for example the OpenMP threads' waiting).  One untimed warm-up run per
 side fills its numba cache; then the rounds run A, B then B, A, ... and the wall time of each
 run (``wall_time`` of its results.h5, the time loop without start-up) and its cost split are
 printed with the CPU model and the load before and after, and the ratio A/B per round.
@@ -37,7 +39,8 @@ def checkpoint_time(path: str) -> float:
         return float(f["clock"].attrs["time"])
 
 
-def run_side(tree: str, case: str, sets: list, ckpt: str, t_end: float, out: Path, threads: int, cache: str):
+def run_side(tree: str, case: str, sets: list, ckpt: str, t_end: float, out: Path, threads: int, cache: str,
+             extra_env: dict | None = None):
     ckpt = str(Path(ckpt).resolve())
     case = str(Path(case).resolve())
     cmd = [sys.executable, "-m", "cfddem.cli", "run", case, "--set", f'checkpoint.start_from="{ckpt}"',
@@ -47,7 +50,7 @@ def run_side(tree: str, case: str, sets: list, ckpt: str, t_end: float, out: Pat
            "--out", str(out), "--force", "--overwrite", "--threads", str(threads)]
     for s in sets:
         cmd += ["--set", s]
-    env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+    env = dict(os.environ, NUMBA_CACHE_DIR=cache, **(extra_env or {}))
     t0 = time.perf_counter()
     p = subprocess.run(cmd, cwd=tree, env=env, capture_output=True, text=True)
     wall = time.perf_counter() - t0
@@ -68,6 +71,8 @@ def main(argv=None):
     ap.add_argument("--b-tree", default=".")
     ap.add_argument("--a-set", action="append", default=[])
     ap.add_argument("--b-set", action="append", default=[])
+    ap.add_argument("--a-env", action="append", default=[], help="KEY=VALUE for side A's environment")
+    ap.add_argument("--b-env", action="append", default=[], help="KEY=VALUE for side B's environment")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--out", default="/tmp/flagship_bench")
@@ -76,10 +81,12 @@ def main(argv=None):
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     sides = {"A": (a.a_tree, a.a_set), "B": (a.b_tree, a.b_set)}
+    envs = {k: dict(e.split("=", 1) for e in v) for k, v in (("A", a.a_env), ("B", a.b_env))}
     print(f"CPU: {cpu_model()}; {os.cpu_count()} logical CPUs; threads {a.threads}; load {load()}")
     for name, (tree, sets) in sides.items():
-        print(f"{name}: tree {Path(tree).resolve()}, overrides {sets or 'none'}")
-        run_side(tree, a.case, sets, a.checkpoint, t_end, out / f"warm_{name}", a.threads, f"/tmp/nc_flagship_{name}")
+        print(f"{name}: tree {Path(tree).resolve()}, overrides {sets or 'none'}, environment {envs[name] or 'as is'}")
+        run_side(tree, a.case, sets, a.checkpoint, t_end, out / f"warm_{name}", a.threads, f"/tmp/nc_flagship_{name}",
+                 envs[name])
     rows = []
     for r in range(a.rounds):
         res = {}
@@ -87,7 +94,7 @@ def main(argv=None):
             tree, sets = sides[name]
             l0 = load()
             w, tm = run_side(tree, a.case, sets, a.checkpoint, t_end, out / f"r{r}_{name}", a.threads,
-                             f"/tmp/nc_flagship_{name}")
+                             f"/tmp/nc_flagship_{name}", envs[name])
             res[name] = w
             split = ", ".join(f"{k} {v:.1f}" for k, v in sorted(tm.items()) if v > 0.05 and k != "total")
             print(f"round {r + 1} {name}: {w:.1f} s for {a.duration:g} s of flow ({split}); load {l0} -> {load()}",
@@ -95,7 +102,7 @@ def main(argv=None):
         rows.append(res)
         print(f"round {r + 1}: A/B = {res['A'] / res['B']:.3f}", flush=True)
     (out / "flagship.json").write_text(json.dumps({"cpu": cpu_model(), "rounds": rows, "duration": a.duration,
-                                                   "sides": {k: {"tree": str(Path(v[0]).resolve()), "set": v[1]}
+                                                   "sides": {k: {"tree": str(Path(v[0]).resolve()), "set": v[1], "env": envs[k]}
                                                              for k, v in sides.items()}}, indent=1))
 
 
