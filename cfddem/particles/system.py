@@ -184,6 +184,9 @@ class ParticleSystem:
         self._sink = None
         self.sunk_count = 0
         self.sunk_mass = 0.0
+        # what the sink took since the system was made, never reset: particles, and clumps whole
+        self.sunk_total = 0
+        self.sunk_bodies = 0
 
     # ------------------------------------------------------------------ storage
     def _alloc_particles(self, cap):
@@ -345,7 +348,8 @@ class ParticleSystem:
         """Particles whose centre lies beyond the plane through ``point`` with outward
         ``normal`` leave the system at the next neighbour rebuild that :meth:`step` makes (a
         clump when one of its members does), instead of forcing one of their own: an exit that
-        costs no rebuilds.  They count in ``sunk_count`` / ``sunk_mass`` (:meth:`take_sunk`).
+        costs no rebuilds.  They count in ``sunk_count`` / ``sunk_mass`` (:meth:`take_sunk`), and in
+        ``sunk_total`` / ``sunk_bodies`` (particles, and clumps, since the system was made; never reset).
         Until then they move and touch like the others.  ``set_sink()`` removes the sink."""
         if point is None:
             self._sink = None
@@ -371,9 +375,12 @@ class ParticleSystem:
         beyond = self.beyond_sink()
         if not beyond.any():
             return 0, 0.0
+        nb0 = 0 if self.clumps is None else int(self.clumps.nb)
         k, m = self.remove_particles(beyond)
         self.sunk_count += k
         self.sunk_mass += m
+        self.sunk_total += k
+        self.sunk_bodies += nb0 - (0 if self.clumps is None else int(self.clumps.nb))
         return k, m
 
     @property

@@ -340,6 +340,9 @@ class BlenderScene(SiloScene):
         nt = super().next_time(t)
         return min(nt, self._next_sample()) if self.gate_open else nt
 
+    def exit_plane(self):
+        return None  # nothing leaves: the bodies recirculate through the periodic channel
+
     def after_steps(self) -> None:
         t = self.sim.system.time
         if self.gate_open and t >= self._next_sample() - 0.5 * self.sim.dt:

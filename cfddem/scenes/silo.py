@@ -54,7 +54,8 @@ wide bins of the highest centre) and the bulk density
 (:func:`~cfddem.measure.silo.bulk_density`) in the box x in [3 d, width - 3 d], full depth,
 y from 3 d above the bottom (flat) or the hopper top, to 3 d below the free surface.
 
-Discharge: particles whose centres fall below y = -removal_depth are removed and counted
+Discharge: particles whose centres fall below y = -removal_depth are removed (at the engine's
+next neighbour rebuild, within ~2 ms: the scene's exit plane is the engine's sink) and counted
 (``/series/discharged_mass``, the run counters ``mass_out``/``count_out``).  Every
 ``settle_check_interval`` the discharged mass is recorded; if nothing left for ``clog_time``
 the discharge has stopped: CLOGGED if some particle centre lies in the slot's x range below
@@ -685,6 +686,8 @@ class SiloScene(Scene):
         self.k_check = 1
         self.gate_open_time = math.nan
         self.last_out_time = math.nan
+        # the system's sink counters (particles, clumps) at the last look (after_steps)
+        self._sunk_seen = (0, 0)  # (the system is made after the scene, with both at 0)
         self.rec_t: list[float] = []
         self.rec_m: list[float] = []
         self.fill = {"bulk_density": math.nan, "fill_height": math.nan, "n_particles": 0,
@@ -724,6 +727,11 @@ class SiloScene(Scene):
         self.pour_interval = self.g.layer_size() * self.m_p / s["pour_rate"] if self.g.pour else math.inf
 
     # ------------------------------------------------------------------ hooks
+    def exit_plane(self):
+        """Below y = -removal_depth: the particles leave at the engine's next neighbour rebuild
+        (within ~2 ms of flow; ParticleSystem.set_sink), instead of forcing a rebuild of their own."""
+        return (float(self.g.xc), -float(self.g.removal_depth), 0.0), (0.0, -1.0, 0.0)
+
     def start(self) -> None:
         d = self.g.d
         self._fill_friction()
@@ -825,15 +833,12 @@ class SiloScene(Scene):
         half = 0.5 * sim.dt
         if self.pouring:
             self._pour(t)
-        if sys_.n:
-            out = sys_.pos[:, 1] < -self.g.removal_depth
-            if out.any():
-                nb0 = self._bodies()
-                k, m = sys_.remove_particles(out)
-                self.bodies_out += nb0 - self._bodies()
-                sim.counters["count_out"] += k
-                sim.counters["mass_out"] += m
-                self.last_out_time = t
+        # the particles below the removal depth left through the exit plane (exit_plane: the
+        # engine's sink, at its next rebuild; the simulation counts them in count_out/mass_out)
+        if sys_.sunk_total != self._sunk_seen[0]:
+            self.bodies_out += sys_.sunk_bodies - self._sunk_seen[1]
+            self._sunk_seen = (sys_.sunk_total, sys_.sunk_bodies)
+            self.last_out_time = t
         if self.gate_open and not self.ended and t >= self._next_field_time() - half:
             if sys_.n:
                 self.field.sample(sys_.pos, sys_.vel)
@@ -1128,6 +1133,7 @@ class SiloScene(Scene):
         self.n_inserted = int(d["n_inserted"])
         self.spheres_inserted = int(d.get("spheres_inserted", self.n_inserted))
         self.bodies_out = int(d.get("bodies_out", 0))
+        self._sunk_seen = (self.sim.system.sunk_total, self.sim.system.sunk_bodies)
         self.layers_done = int(d["layers_done"])
         self.field.set_state(d["field"])
         if "win_all" in d:
