@@ -69,15 +69,18 @@ def _half_kick(vx, vy, vz, ax, ay, az, h, rotating, r00, r01, r02, r10, r11, r12
 
 @kernel(inline="always")
 def _past_slack(slack, i, wgeom, dx, dy, dz):
-    """1 if the displacement d may have brought particle i within reach of a standing wall it
-    is not a candidate of (its margins ``slack[i]``, walls.wall_candidates), else 0."""
+    """True if the displacement d may have brought particle i within reach of a standing wall
+    it is not a candidate of (its margins ``slack[i]``, walls.wall_candidates).
+
+    The nearest wall's shift is computed for every particle (wall 0 stands in where there is
+    none: pack_walls gives wgeom a row even without walls) and the two tests are combined
+    bitwise, without early returns or short-circuits: their branches made the kick loop ~30 %
+    slower (27-31 against 22-25 ns per particle, the 30k chute, one thread)."""
     s2 = slack[i, 1]
-    if dx * dx + dy * dy + dz * dz >= s2 * s2:
-        return 1
     w = int(slack[i, 2])
-    if w >= 0 and wall_shift(wgeom, w, dx, dy, dz) >= slack[i, 0]:
-        return 1
-    return 0  # (also for a non-finite d: the force pass reports that particle)
+    shift = wall_shift(wgeom, max(w, 0), dx, dy, dz)
+    # (both False for a non-finite d: the force pass reports that particle)
+    return (dx * dx + dy * dy + dz * dz >= s2 * s2) | ((w >= 0) & (shift >= slack[i, 0]))
 
 
 @parallel_kernel
