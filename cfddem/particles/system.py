@@ -703,7 +703,9 @@ class ParticleSystem:
         ov_w, nback, kback = 0.0, 0, 0
         nl = len(self._wplist)
         if nl:
-            ov_w, nback, kback = (it.wall_forces_s if self._serial(nl) else it.wall_forces)(
+            # a wall candidate costs about four particles' kick (27 ns warm, 65 cold per
+            # candidate against 15-25 ns per particle): threads pay from a quarter of the count
+            ov_w, nback, kback = (it.wall_forces_s if self._serial(4 * nl) else it.wall_forces)(
                 nl, self._wplist, self._pos, self._vel, self._omega, self._force, self._torque, self._radius,
                 self._mass, self._inertia, self._ext_torque, self._has_ext, self._wgeom, self._wref, self._wpar,
                 self.nw, self._wmask, MAX_FILTERED_WALLS, self._whist, self._won, self._wfw, self._wtw, self._wfn,

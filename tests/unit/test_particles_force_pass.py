@@ -243,3 +243,30 @@ def test_every_search_path_gives_the_brute_force_pairs(slots):
     got = {tuple(p) for p in s.pairs().tolist()}
     assert len(got) == s.n_pairs > 300 and got == want
     assert s._pair_slots == int(s._cur["counts"][: s.n].max()) + 4
+
+
+@pytest.mark.parametrize("periodic", [(False, False, False), (True, False, True), (True, True, True)])
+@pytest.mark.parametrize("serial", [True, False])
+def test_pair_pass_zeroes_every_particle_inside_its_colours(periodic, serial):
+    """The pair pass has no zeroing loop of its own (the first colour zeroes each slab's group,
+    the last slab before the colours): sums into arrays full of NaN equal sums into zeros."""
+    s = _system(900, periodic, 4)
+    s.step(10)
+    n = s.n
+    ns = len(s._slab_start) - 1
+    assert ns >= 6
+    out = []
+    numba.set_num_threads(2 if not serial else 1)
+    try:
+        for fill in (0.0, np.nan):
+            f = np.full((n, 3), fill)
+            t = np.full((n, 3), fill)
+            hist = s._cur["hist"][: max(s.n_pairs, 1)].copy()
+            s._pair_pass(f, t, hist, False, s._no_pf, s._no_pr, 0.0, serial)
+            out.append((f, t))
+    finally:
+        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+    assert np.all(np.isfinite(out[1][0])) and np.all(np.isfinite(out[1][1]))
+    assert np.abs(out[0][0]).max() > 0.0
+    np.testing.assert_array_equal(out[0][0], out[1][0])
+    np.testing.assert_array_equal(out[0][1], out[1][1])
