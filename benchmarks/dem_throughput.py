@@ -217,7 +217,7 @@ def main(argv=None):
     numba.set_num_threads(max(threads))
     s = build(a.particles)
     print(f"particles={s.n} periodic_length={s._plen[2]:.4f} m threads={threads} "
-          f"OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY')}")
+          f"OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY')} GOMP_SPINCOUNT={os.environ.get('GOMP_SPINCOUNT')}")
     t0 = time.perf_counter()
     s.step(5)  # compile (excluded)
     try:

@@ -44,3 +44,19 @@ def test_layer_does_not_depend_on_the_import_order():
 def test_a_layer_chosen_by_the_user_is_kept():
     assert _layer("numba_first", NUMBA_THREADING_LAYER="workqueue") == "workqueue"
     assert _layer("cfddem_first", NUMBA_THREADING_LAYER_PRIORITY="workqueue omp tbb") == "workqueue"
+
+
+def _spin(**env):
+    e = dict(os.environ, CFDDEM_NUMBA_CACHE="0", **env)
+    if "GOMP_SPINCOUNT" not in env:
+        e.pop("GOMP_SPINCOUNT", None)
+    code = "import cfddem._jit, os; print(os.environ['OMP_WAIT_POLICY'], os.environ['GOMP_SPINCOUNT'])"
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=e, timeout=300)
+    assert p.returncode == 0, p.stderr[-2000:]
+    return p.stdout.split()
+
+
+def test_threads_spin_briefly_before_sleeping_unless_the_user_says_otherwise():
+    policy, spin = _spin()
+    assert int(spin) == 1000
+    assert _spin(GOMP_SPINCOUNT="0")[1] == "0"
