@@ -13,7 +13,8 @@ Build (all deterministic, identical for any thread count):
    reorders the particle arrays in this order, which gives cache locality.  After the sort,
    cell c holds particles ``cell_start[c] .. cell_start[c+1]-1``.
 3. one search pass (:func:`pair_search`, ``prange`` over particles): particle i scans the
-   (up to) 27 neighbouring cells with index >= its own cell and keeps j > i, into slots of a
+   (up to) 27 neighbouring cells with index >= its own cell and keeps j > i (as rows of
+   cells contiguous in memory: one or two ranges of j per row), into slots of a
    size taken from the last build (more slots and a second pass when a particle has more
    partners; a counting and a filling pass where the slots would be too many).  The pairs of
    particle i are stored contiguously from ``first_start[i]`` (:func:`pair_compact`), so the
@@ -215,6 +216,21 @@ def affine_moments(pos, vel, n, free, nf, row, out_xx, out_xv):
             out_xx[a, b] = out_xx[b, a]
 
 
+@kernel(inline="always")
+def _axis_cell(o, c, nc, per):
+    """The cell ``c + o`` along an axis of ``nc`` cells (``per``: periodic, wrapped when the
+    axis has 3 cells or more, else no neighbour across the seam), -1 where there is none."""
+    a = c + o
+    if per and nc >= 3:
+        if a < 0:
+            a += nc
+        elif a >= nc:
+            a -= nc
+    elif a < 0 or a >= nc:
+        a = -1
+    return a
+
+
 @parallel_kernel
 def pair_search(pos, radius, n, skin, lo, size, nc, periodic_len, cell_start, starts, slots, tmp, counts):
     """The partners j > i of particle i within R_i + R_j + skin, in scan order, into ``tmp``:
@@ -225,17 +241,44 @@ def pair_search(pos, radius, n, skin, lo, size, nc, periodic_len, cell_start, st
       counting pass with all ``starts`` zero, then a filling pass with their prefix sums: for
       neighbourhoods too dense for slots).
 
-    ``counts[i]`` gets their number, also beyond the room.  Returns the largest count: above
-    ``slots`` the caller gives more slots and searches again."""
+    The scan: the cells of the stencil with linear index >= i's own (and j > i in its own
+    cell), visited as rows along the axis of stride 1 (:func:`grid_strides`: the cells of a
+    row, and their cell-sorted particles, are contiguous, so a row is one or two ranges of j
+    instead of three cells), the rows in the order of the slowest axis, then the middle one.
+    A whole row lies above or below i's cell (its offset from i's row is a multiple of the
+    row length), so only i's own row is cut.  ``counts[i]`` gets the number of partners, also
+    beyond the room.  Returns the largest count: above ``slots`` the caller gives more slots
+    and searches again."""
+    # the axes by stride: A slowest, C of stride 1 (the later axis of equal strides), B between
+    st0 = nc[3]
+    st1 = nc[4]
+    st2 = nc[5]
+    axa = 0
+    if st1 > st0:
+        axa = 1
+    if st2 > st0 and st2 > st1:
+        axa = 2
+    r0 = 1 if axa == 0 else 0
+    r1 = 2 if axa != 2 else 1
+    axc = r1
+    axb = r0
+    if nc[3 + r0] < nc[3 + r1]:
+        axc = r0
+        axb = r1
+    nca = nc[axa]
+    ncb = nc[axb]
+    ncc = nc[axc]
+    sta = nc[3 + axa]
+    stb = nc[3 + axb]
+    pera = periodic_len[axa] > 0.0
+    perb = periodic_len[axb] > 0.0
+    perc = periodic_len[axc] > 0.0
     pl0 = periodic_len[0]
     pl1 = periodic_len[1]
     pl2 = periodic_len[2]
     nc0 = nc[0]
     nc1 = nc[1]
     nc2 = nc[2]
-    st0 = nc[3]
-    st1 = nc[4]
-    st2 = nc[5]
     lo0 = lo[0]
     lo1 = lo[1]
     lo2 = lo[2]
@@ -251,7 +294,10 @@ def pair_search(pos, radius, n, skin, lo, size, nc, periodic_len, cell_start, st
         cx = min(max(int((xi - lo0) / sz0), 0), nc0 - 1)
         cy = min(max(int((yi - lo1) / sz1), 0), nc1 - 1)
         cz = min(max(int((zi - lo2) / sz2), 0), nc2 - 1)
-        me = cx * st0 + cy * st1 + cz * st2
+        ca = cx if axa == 0 else (cy if axa == 1 else cz)
+        cb = cx if axb == 0 else (cy if axb == 1 else cz)
+        cc = cx if axc == 0 else (cy if axc == 1 else cz)
+        own = ca * sta + cb * stb  # the base of i's row
         if slots > 0:
             base = i * slots
             room = slots
@@ -259,34 +305,44 @@ def pair_search(pos, radius, n, skin, lo, size, nc, periodic_len, cell_start, st
             base = starts[i]
             room = starts[i + 1] - base
         cnt = 0
-        for ox in range(-1, 2):
-            ax = cx + ox
-            if pl0 > 0.0:
-                if nc0 < 3 and ox != 0 and (ax < 0 or ax >= nc0):
-                    continue
-                ax = ax + nc0 if ax < 0 else (ax - nc0 if ax >= nc0 else ax)  # (no integer division)
-            elif ax < 0 or ax >= nc0:
+        for oa in range(-1, 2):
+            aa = _axis_cell(oa, ca, nca, pera)
+            if aa < 0:
                 continue
-            for oy in range(-1, 2):
-                ay = cy + oy
-                if pl1 > 0.0:
-                    if nc1 < 3 and oy != 0 and (ay < 0 or ay >= nc1):
-                        continue
-                    ay = ay + nc1 if ay < 0 else (ay - nc1 if ay >= nc1 else ay)  # (no integer division)
-                elif ay < 0 or ay >= nc1:
+            for ob in range(-1, 2):
+                ab = _axis_cell(ob, cb, ncb, perb)
+                if ab < 0:
                     continue
-                for oz in range(-1, 2):
-                    az = cz + oz
-                    if pl2 > 0.0:
-                        if nc2 < 3 and oz != 0 and (az < 0 or az >= nc2):
-                            continue
-                        az = az + nc2 if az < 0 else (az - nc2 if az >= nc2 else az)  # (no integer division)
-                    elif az < 0 or az >= nc2:
+                row = aa * sta + ab * stb
+                if row < own:
+                    continue  # every cell of the row below i's cell
+                # the row's cells in offset order, merged into at most two contiguous runs
+                nr = 0
+                lo_a = 0
+                hi_a = -1
+                lo_b = 0
+                hi_b = -1
+                for oc in range(-1, 2):
+                    ac = _axis_cell(oc, cc, ncc, perc)
+                    if ac < 0 or (row == own and ac < cc):
                         continue
-                    c = ax * st0 + ay * st1 + az * st2
-                    if c < me:
-                        continue
-                    for j in range(max(cell_start[c], i + 1), cell_start[c + 1]):
+                    c = row + ac
+                    if nr == 1 and c == hi_a + 1:
+                        hi_a = c
+                    elif nr == 2 and c == hi_b + 1:
+                        hi_b = c
+                    elif nr == 0:
+                        lo_a = c
+                        hi_a = c
+                        nr = 1
+                    else:
+                        lo_b = c
+                        hi_b = c
+                        nr = 2
+                for r in range(nr):
+                    clo = lo_a if r == 0 else lo_b
+                    chi = hi_a if r == 0 else hi_b
+                    for j in range(max(cell_start[clo], i + 1), cell_start[chi + 1]):
                         dx = _min_image(pos[j, 0] - xi, pl0)
                         dy = _min_image(pos[j, 1] - yi, pl1)
                         dz = _min_image(pos[j, 2] - zi, pl2)

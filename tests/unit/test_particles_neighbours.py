@@ -48,6 +48,34 @@ def test_pairs_equal_brute_force(periodic, seed):
 
 
 @pytest.mark.nojit
+@pytest.mark.parametrize("lengths,periodic", [
+    ((0.03, 0.0095, 0.03), (False, True, True)),   # 2 cells across a periodic axis: no wrap there
+    ((0.011, 0.03, 0.0095), (True, False, True)),  # 3 and 2 cells, the long axis open
+    ((0.05, 0.011, 0.011), (True, True, True)),    # rows of 3 cells along a periodic stride-1 axis
+])
+def test_pairs_equal_brute_force_on_thin_periodic_boxes(lengths, periodic):
+    """The search's rows of cells (one or two ranges of j along the stride-1 axis, wrapped at a
+    periodic seam, no wrap across an axis of fewer than 3 cells) find every pair once."""
+    rng = np.random.default_rng(7)
+    per = tuple((0.0, L) if p else None for L, p in zip(lengths, periodic))
+    s = ParticleSystem(pp=LinearContact(1000.0, 0.9, 0.5, 0.3), walls=[], dt=1e-5, periodic=per,
+                       skin=4e-4, capacity=64)
+    n = 300
+    pos = rng.uniform(0, 1, (n, 3)) * np.array(lengths)
+    rad = rng.uniform(0.8e-3, 1.4e-3, n)
+    s.add_particles(pos, 0.0, rad, RHO)
+    s._rebuild()
+    plen = np.array([L if p else 0.0 for L, p in zip(lengths, periodic)])
+    ref = brute_force_pairs(s.pos, s.radius, s.skin, plen)
+    ids = s.ids
+    ref_ids = {(min(ids[i], ids[j]), max(ids[i], ids[j])) for i, j in ref}
+    got = {tuple(p) for p in s.pairs().tolist()}
+    assert len(ref_ids) > 100
+    assert len(got) == s.n_pairs
+    assert got == ref_ids
+
+
+@pytest.mark.nojit
 def test_far_away_particle_does_not_blow_up_the_grid():
     s = _random_system(100, (False, False, False), 2)
     s.add_particles([[1.0e3, 5.0, -2.0e3]], 0.0, 1e-3, RHO)
