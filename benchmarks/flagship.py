@@ -3,7 +3,7 @@
     python benchmarks/flagship.py --checkpoint runs/dev/checkpoints/ckpt_X.h5 --duration 0.2 \\
         --a-tree /path/to/old/checkout --b-set time.dt=8e-5 --b-set gas.coupling_interval=4 \\
         [--case cases/chute_16rpm] [--threads 2] [--rounds 2] [--out /tmp/flagship] \\
-        [--a-env GOMP_SPINCOUNT=0] [--b-env ...]
+        [--a-env GOMP_SPINCOUNT=0] [--b-env ...] [--legacy-pairs]
 
 Each side is ``cfddem run CASE`` from the checkpoint (``checkpoint.start_from``) for
 ``--duration`` seconds of flow, run from a code tree (``--a-tree``/``--b-tree``, default this
@@ -14,6 +14,12 @@ side fills its numba cache; then the rounds run A, B then B, A, ... and the wall
 run (``wall_time`` of its results.h5, the time loop without start-up) and its cost split are
 printed with the CPU model and the load before and after, and the ratio A/B per round.
 Never run it beside another timing job or on a loaded machine.
+
+``--legacy-pairs``: code from before commit c03cb13 (for example 1b56e68) cannot read the pair
+list of a checkpoint written since (it expects per-pair force arrays ``l_pf``, ``l_pr``).  The
+option writes ``OUT/start.h5``, a copy of the checkpoint with those arrays zero-filled and a
+neighbour rebuild at the first step (the contact histories carry over through it), and starts
+both sides from that copy, so that both do the same work.
 """
 
 from __future__ import annotations
@@ -62,6 +68,24 @@ def run_side(tree: str, case: str, sets: list, ckpt: str, t_end: float, out: Pat
     return float(meta.get("wall_time", wall)), timings
 
 
+def legacy_pairs(src: str, dst: Path) -> str:
+    """Copy the checkpoint ``src`` to ``dst`` with the per-pair force arrays that code before
+    commit c03cb13 reads (zeros: they are outputs of a force pass) and a forced rebuild."""
+    import shutil
+
+    import numpy as np
+
+    shutil.copyfile(src, dst)
+    with h5py.File(dst, "r+") as f:
+        g = f["system"]
+        n = g["l_pi"].shape[0]
+        for name, width in (("l_pf", 6), ("l_pr", 3)):
+            if name not in g:
+                g[name] = np.zeros((n, width))
+        g.attrs["need_rebuild"] = np.int64(1)
+    return str(dst)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--checkpoint", required=True)
@@ -76,10 +100,15 @@ def main(argv=None):
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--out", default="/tmp/flagship_bench")
+    ap.add_argument("--legacy-pairs", action="store_true",
+                    help="start both sides from a copy of the checkpoint that code before c03cb13 reads")
     a = ap.parse_args(argv)
     t_end = checkpoint_time(a.checkpoint) + a.duration
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
+    if a.legacy_pairs:
+        a.checkpoint = legacy_pairs(a.checkpoint, out / "start.h5")
+        print(f"start: {a.checkpoint} (pair arrays for code before c03cb13, rebuild at the first step)")
     sides = {"A": (a.a_tree, a.a_set), "B": (a.b_tree, a.b_set)}
     envs = {k: dict(e.split("=", 1) for e in v) for k, v in (("A", a.a_env), ("B", a.b_env))}
     print(f"CPU: {cpu_model()}; {os.cpu_count()} logical CPUs; threads {a.threads}; load {load()}")
