@@ -24,14 +24,20 @@ def _rows(path):
 def test_calibrate_sweep_writes_table_and_plot(write_case, tmp_path, one_numba_thread):
     d = write_case(CASE.format(clump="none", variant="bulk", n=330), name="cal")
     out = tmp_path / "cal_out"
-    rc = main(["calibrate", str(d), "--mu", "0.1,0.6", "--out", str(out), "--target", "0.3", "--threads", "1"])
+    rc = main(["calibrate", str(d), "--mu", "0,0.1,0.6", "--out", str(out), "--target", "0.3", "--threads", "1"])
     assert rc == 0
     rows = _rows(out / "calibration.csv")
-    assert [float(r["x"]) for r in rows] == [0.1, 0.6]
+    assert [float(r["x"]) for r in rows] == [0.0, 0.1, 0.6]
     assert all(r["label"] == "spheres" and r["rotation"] == "free" and r["n"] == "1" for r in rows)
     f = [float(r["friction"]) for r in rows]
     assert all(math.isfinite(x) for x in f)
-    assert f[1] > f[0] + 0.05  # more particle friction, more bulk friction
+    # more particle friction, more bulk friction. One sample of this 330-sphere cell scatters by
+    # 0.04-0.05 (seeds 5-10: mu = 0 gave 0.10-0.20, mu = 0.1 0.24-0.36, mu = 0.6 0.29-0.40), so
+    # the steps asserted are the ones that stand above that scatter for every seed: from
+    # frictionless spheres to any friction; between 0.1 and 0.6 the curve flattens (spheres
+    # free to roll) and one sample cannot resolve it
+    assert f[1] > f[0] + 0.05
+    assert f[2] > f[0] + 0.08
     assert all(abs(float(r["load_error"])) < 0.01 for r in rows)
     assert (out / "calibration.png").stat().st_size > 5000
     md = (out / "calibration.md").read_text()
@@ -43,12 +49,14 @@ def test_calibrate_sweep_writes_table_and_plot(write_case, tmp_path, one_numba_t
     assert rc == 0
     rows = _rows(out / "calibration.csv")
     assert {(r["label"], r["rotation"], r["x"]) for r in rows} == {
-        ("spheres", "free", "0.1"), ("spheres", "free", "0.6"), ("locked_only", "locked", "0.1")}
+        ("spheres", "free", "0.0"), ("spheres", "free", "0.1"), ("spheres", "free", "0.6"),
+        ("locked_only", "locked", "0.1")}
     assert (out / "spheres_free_mur0_mu0.1_s5" / "results.h5").stat().st_mtime == mtime
     # particles that cannot roll shear harder at the same contact friction (the sample poured
-    # with locked spins is another packing too; the gap in this cell is 0.07 at mu = 0.1)
+    # with locked spins is another packing too; at mu = 0.1 the gap in this cell is 0.07-0.23
+    # over seeds 5-10)
     locked = [float(r["friction"]) for r in rows if r["label"] == "locked_only"][0]
-    assert locked > f[0] + 0.03
+    assert locked > f[1] + 0.03  # seeds 5-10: locked 0.40-0.50 against free 0.24-0.36
 
 
 def test_replicas_and_reuse(write_case, tmp_path, one_numba_thread, capsys):
