@@ -1485,7 +1485,8 @@ class ParticleSystem:
                         npairs=self._npairs, n_built=self._n_built, skin_built=self._skin_built,
                         need_rebuild=int(self._need_rebuild), forces_stale=int(self._forces_stale),
                         last_ov=self._last_ov, pending_m2=self._pending_m2, wall_back=self.wall_back_count,
-                        w_geom=self._wgeom.copy(), w_ref=self._wref.copy())
+                        w_geom=self._wgeom.copy(), w_ref=self._wref.copy(),
+                        rotation_locked=int(self.rotation_locked))
         for name in _ROW_ARRAYS if self.nm else _PARTICLE_ARRAYS + _WALL_ARRAYS:
             st["p_" + name] = getattr(self, "_" + name)[:n].copy()
         if self.nm:
@@ -1568,6 +1569,10 @@ class ParticleSystem:
             else:  # written before: the plain test on the pending drift
                 self._pending_disp = None
         self.wall_back_count = int(state.get("wall_back", 0))  # checkpoints written before the count: 0
+        if "rotation_locked" in state:  # a lock taken mid-run (after a fill) holds for later particles
+            self.rotation_locked = bool(int(state["rotation_locked"]))
+        elif n and np.any(self._held[:n] == 2):  # written before the flag: a locked particle says so
+            self.rotation_locked = True
         if "w_geom" in state:  # moved or switched walls
             self._wgeom[...] = np.asarray(state["w_geom"]).reshape(self._wgeom.shape)
             self._wref[...] = np.asarray(state["w_ref"]).reshape(self._wref.shape)

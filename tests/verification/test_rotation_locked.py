@@ -175,3 +175,28 @@ def test_shear_cell_pours_free_and_locks_at_the_scraping(tmp_path, one_numba_thr
                       progress=False, threads=1)
     free.run()
     assert sim.scene.fill_info == free.scene.fill_info
+
+
+def test_a_lock_taken_mid_run_survives_a_restart():
+    """The silo and shear cell lock after their fill: a run resumed from a checkpoint taken
+    after the lock locks the particles added later too (and so does one written before the
+    flag was saved, where a locked particle says so)."""
+    pp = LinearContact(k_n=1000.0, e_n=0.5, e_t=0.5, mu=0.3)
+    s = ParticleSystem(pp=pp, walls=[], dt=1e-5)
+    s.add_particles([[0.0, 0.0, 0.0], [0.01, 0.0, 0.0]], 0.0, R, RHO, omega=[0.0, 0.0, 5.0])
+    s.lock_rotation()
+    s.step(10)
+    st = s.get_state()
+    assert int(st["rotation_locked"]) == 1
+    for state in (st, {k: v for k, v in st.items() if k != "rotation_locked"}):
+        r = ParticleSystem(pp=pp, walls=[], dt=1e-5)
+        assert not r.rotation_locked
+        r.set_state(state)
+        assert r.rotation_locked
+        r.add_particles([[0.04, 0.0, 0.0]], 0.0, R, RHO, omega=[1.0, 0.0, 0.0])
+        assert r._held[2] == 2 and np.all(r.omega[2] == 0.0)
+    free = ParticleSystem(pp=pp, walls=[], dt=1e-5)
+    free.add_particles([[0.0, 0.0, 0.0]], 0.0, R, RHO)
+    r = ParticleSystem(pp=pp, walls=[], dt=1e-5)
+    r.set_state(free.get_state())
+    assert not r.rotation_locked
