@@ -56,6 +56,15 @@ def nonneg(default, unit, doc, **kw) -> Key:
     return Key("float", default, unit, doc, lo=0.0, **kw)
 
 
+def fill_friction(until: str) -> Key:
+    """A scene's ``fill_friction``: the particle-particle sliding friction while its sample is
+    filled, the case's value from ``until`` on (-1: the case's friction throughout);
+    :func:`cfddem.scenes.common.check_fill_friction` refuses the values between -1 and 0."""
+    return Key("float", -1.0, "-", "particle-particle sliding friction during the fill (the blending thesis filled "
+               f"with 0.15 to pack densely), the case's value from {until} on; walls and rolling friction keep "
+               "theirs (-1: the case's friction throughout)", lo=-1.0)
+
+
 def wall_override(what: str) -> dict:
     """Per-wall-group contact overrides of a scene (unset: contact.particle_wall): every key of
     every registered contact law (:func:`cfddem.particles.contact.contact_keys`);

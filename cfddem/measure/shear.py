@@ -91,3 +91,18 @@ def lid_disc(radius: float, sphere_radius: float) -> np.ndarray:
             if x * x + z * z <= rc * rc * (1 + 1e-12):
                 pts.append((x, 0.0, z))
     return np.array(pts, float)
+
+
+def slab_solid_fraction(y, volume, y_lo: float, y_hi: float, area: float) -> float:
+    """Solid fraction of a horizontal slab y_lo < y < y_hi of a cell of cross-section ``area``
+    (m^2): the solid volume of the units (spheres, or clumps at their centre of mass) whose
+    centre lies in it, over the slab's volume.  Counting whole units by their centres is exact
+    on average for a uniform packing (what crosses the slab's faces inward balances what crosses
+    outward); keep the slab a few diameters clear of the floor and the free surface, where the
+    packing is not uniform.  NaN for an empty or inverted slab."""
+    y = np.asarray(y, float)
+    v = np.asarray(volume, float)
+    if not y_hi > y_lo or area <= 0.0:
+        return math.nan
+    sel = (y > y_lo) & (y < y_hi)
+    return float(np.sum(v[sel])) / (area * (y_hi - y_lo))

@@ -1312,14 +1312,22 @@ class ParticleSystem:
         ``on`` False) only the particle-particle sliding friction is set, to ``pp_mu``, and
         everything else keeps its built value: a fill with a lower friction (the silo's
         ``fill_friction``, the blending thesis's 0.15)."""
-        tables = [self._pp_params, self._wpar, self._mt.par]
+        tables = self._friction_tables()
         if self._friction_built is None:
             self._friction_built = [t[:, [P_MU, P_MUR]].copy() for t in tables]
+        changed = False
         for k, (t, built) in enumerate(zip(tables, self._friction_built)):
-            t[:, [P_MU, P_MUR]] = built if on or pp_mu is not None else 0.0
+            new = np.broadcast_to(built if on or pp_mu is not None else 0.0, built.shape).copy()
             if not on and pp_mu is not None and k == 0:
-                t[:, P_MU] = float(pp_mu)
-        self._forces_stale = True
+                new[:, 0] = float(pp_mu)
+            changed |= not np.array_equal(t[:, [P_MU, P_MUR]], new)
+            t[:, [P_MU, P_MUR]] = new
+        if changed:  # the same friction again (a scene's resume) leaves the forces as they are
+            self._forces_stale = True
+
+    def _friction_tables(self) -> list[np.ndarray]:
+        """The contact tables whose sliding and rolling friction :meth:`set_friction` switches."""
+        return [self._pp_params, self._wpar, self._mt.par]
 
     def wall_active(self, wall) -> bool:
         if self._is_mesh(wall):
@@ -1512,6 +1520,10 @@ class ParticleSystem:
             st["l_" + name] = cur[name][: nbuilt + 1].copy()
         if self.clumps is not None:
             st.update(self.clumps.get_state())
+        if self._friction_built is not None:  # a fill's friction (set_friction) and the built values
+            for k, (t, built) in enumerate(zip(self._friction_tables(), self._friction_built)):
+                st[f"f_now{k}"] = t[:, [P_MU, P_MUR]].copy()
+                st[f"f_built{k}"] = built.copy()
         return st
 
     def set_state(self, state) -> None:
@@ -1569,6 +1581,12 @@ class ParticleSystem:
             else:  # written before: the plain test on the pending drift
                 self._pending_disp = None
         self.wall_back_count = int(state.get("wall_back", 0))  # checkpoints written before the count: 0
+        if "f_now0" in state:  # the friction switched by set_friction (written before: the scene sets it again)
+            tables = self._friction_tables()
+            self._friction_built = [np.asarray(state[f"f_built{k}"], float).reshape(t[:, [P_MU, P_MUR]].shape)
+                                    for k, t in enumerate(tables)]
+            for k, t in enumerate(tables):
+                t[:, [P_MU, P_MUR]] = np.asarray(state[f"f_now{k}"], float).reshape(t[:, [P_MU, P_MUR]].shape)
         if "rotation_locked" in state:  # a lock taken mid-run (after a fill) holds for later particles
             self.rotation_locked = bool(int(state["rotation_locked"]))
         elif n and np.any(self._held[:n] == 2):  # written before the flag: a locked particle says so

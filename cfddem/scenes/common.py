@@ -15,6 +15,12 @@ from ..errors import CaseError
 from ..particles.contact import contact_keys
 
 
+def check_fill_friction(section: str, value: float) -> None:
+    """A ``fill_friction`` (:func:`cfddem.schema.fill_friction`): -1 or >= 0."""
+    if value != -1.0 and value < 0.0:
+        raise CaseError(f"{section}.fill_friction", f"{value:g} must be >= 0 (or -1: unchanged)")
+
+
 def gravity_vector(case) -> np.ndarray:
     """g (0, -cos theta, sin theta): chute axes x across, y normal to the floor, z downstream."""
     th = math.radians(case.gravity.inclination_deg)

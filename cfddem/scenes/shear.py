@@ -73,10 +73,11 @@ import math
 import numpy as np
 
 from ..errors import CaseError, RunError
-from ..measure.shear import bulk_friction, inertial_number, lid_disc
+from ..measure.shear import bulk_friction, inertial_number, lid_disc, slab_solid_fraction
 from ..particles.contact import check_contact_values
 from . import Scene
-from ..schema import Key, wall_override
+from .common import check_fill_friction
+from ..schema import Key, fill_friction, wall_override
 from ..schema import nonneg as _nonneg
 from ..schema import number as _f
 from ..schema import positive as _pos
@@ -101,6 +102,7 @@ SHEAR_KEYS = {
     "lattice_jitter": _f(0.05, "-", "random displacement of the sites, up to +-jitter d / 2 per axis", lo=0.0, hi=2.0),
     "fill_time": _nonneg(0.2, "s", "earliest end of the fill (settled check)"),
     "settle_energy": _pos(1e-8, "J", "kinetic energy per particle below which the fill counts as settled"),
+    "fill_friction": fill_friction("the scraping (before the lid is placed)"),
     "consolidate_time": _nonneg(0.05, "s", "shortest consolidation after the lid is placed"),
     "lid_settle_speed": _pos(2e-3, "m/s", "consolidation ends when the lid's vertical speed is below this"),
     "lid_sphere_diameter": _nonneg(0.0, "m", "diameter of the lid's glued spheres (0: particles.diameter)"),
@@ -127,6 +129,7 @@ def check_shear_case(r: dict) -> None:
         raise CaseError("frame.rpm", "the shear cell runs in a fixed frame (rpm = 0)")
     for grp in ("rings", "plate"):
         check_contact_values(f"shear.{grp}", s[grp])
+    check_fill_friction("shear", s["fill_friction"])
     D = s["cell_diameter"]
     if D < 10 * d:
         raise CaseError("shear.cell_diameter", f"{D:g} m is less than 10 particle diameters ({10 * d:g} m)")
@@ -332,6 +335,7 @@ class ShearCellScene(Scene):
         self.k_sample = 0
         self.note = ""
         self.load_log = []  # (time, lid vertical force, target) at every check during consolidation+shear
+        self.fill_info: dict = {}  # the settled fill, at the scraping (_place_lid)
 
     # ------------------------------------------------------------------ helpers
     @property
@@ -394,7 +398,31 @@ class ShearCellScene(Scene):
         return float(np.sum(sys_.mass[sel])) * float(np.linalg.norm(sys_.gravity))
 
     # ------------------------------------------------------------------ hooks
+    def _fill_friction(self) -> None:
+        """The fill's particle-particle sliding friction (``fill_friction``), until the scraping."""
+        if self.s["fill_friction"] >= 0.0:
+            self.sys.set_friction(False, pp_mu=self.s["fill_friction"])
+
+    def sample_solid_fraction(self, bed_top: float) -> float:
+        """Solid fraction of the scraped sample between one diameter above the floor and one
+        below the bed top (:func:`~cfddem.measure.shear.slab_solid_fraction`; spheres and
+        clumps by their centres, the lid excluded)."""
+        sys_ = self.sys
+        d = self.g.d
+        free = sys_.body < 0
+        y = [sys_.pos[free, 1]]
+        v = [sys_.mass[free] / self.case.particles.density]
+        c = sys_.clumps
+        if c is not None and c.nb:
+            keep = np.ones(c.nb, bool)
+            if self.lid_bid >= 0:
+                keep[self._lid()] = False
+            y.append(c.com[keep, 1])
+            v.append(c.mass[keep] / self.case.particles.density)
+        return slab_solid_fraction(np.concatenate(y), np.concatenate(v), self.g.y_floor + d, bed_top - d, self.g.area)
+
     def start(self) -> None:
+        self._fill_friction()
         p = self.case.particles
         pos, _, shape = fill_lattice(self.case)
         if shape is None:
@@ -404,8 +432,11 @@ class ShearCellScene(Scene):
             q = rng.standard_normal((len(pos), 4))
             self.sys.add_clumps(shape, pos, quat=q)
         self.sim.log.info("shear cell: %d %s on a lattice up to y = %.4g m; rings D = %.4g m, base %.4g m, "
-                          "shear ring %.4g m offset %.3g mm", len(pos), p.clump if shape is not None else "spheres",
-                          float(pos[:, 1].max()), 2 * self.g.R, self.g.Hb, self.g.Hs, 1e3 * self.g.off)
+                          "shear ring %.4g m offset %.3g mm%s", len(pos), p.clump if shape is not None else "spheres",
+                          float(pos[:, 1].max()), 2 * self.g.R, self.g.Hb, self.g.Hs, 1e3 * self.g.off,
+                          f"; filled with particle friction {self.s['fill_friction']:g} (the case's "
+                          f"{self.case.contact.particle_particle.mu:g} from the scraping on)"
+                          if self.s["fill_friction"] >= 0.0 else "")
 
     def max_steps(self) -> int:
         return self.s["check_steps"]
@@ -473,6 +504,8 @@ class ShearCellScene(Scene):
         sys_ = self.sys
         g = self.g
         sys_.set_wall_active("mould", False)  # lifted off: what it held is above the scrape level
+        if self.s["fill_friction"] >= 0.0:
+            sys_.set_friction(True)  # the case's friction for the consolidation and the shear
         if self.case.particles.rotation == "locked":
             sys_.lock_rotation()  # the sample was poured with free rotation (particles.rotation)
         settled_top = float(np.max(sys_.pos[:, 1] + sys_.radius))
@@ -486,6 +519,7 @@ class ShearCellScene(Scene):
         if bed_top < g.y_scrape - 3 * g.d:
             self.sim.log.warning("shear cell: the settled bed (top %.4g m) is more than 3 d below the scrape level "
                                  "%.4g m: raise shear.n_particles", bed_top, g.y_scrape)
+        solid = self.sample_solid_fraction(bed_top)
         c = lid_disc(g.R - g.clear, g.r_lid)
         y = bed_top + g.r_lid + 0.05 * g.d
         # the lid (centred on the shear ring) reaching into the base ring: with the ring offset
@@ -511,13 +545,13 @@ class ShearCellScene(Scene):
         self._apply_load(t)
         self.phase = "consolidate"
         self.fill_info = {"kinetic_energy_per_particle": ke, "removed": k, "removed_mass": m, "bed_top": bed_top,
-                          "settled_top": settled_top,
+                          "settled_top": settled_top, "solid_fraction": solid,
                           "lid_spheres": len(c), "lid_mass": shape.mass, "time": t}
         self.sim.log.info("shear cell: settled at t = %.4g s (kinetic energy per particle %.3g J, bed top %.4g m, "
                           "mould lifted); scraped %d "
-                          "particles above y = %.4g m; lid of %d spheres (%.4g kg) placed at y = %.4g m; load %.4g N "
-                          "ramps over %.3g s", t, ke, settled_top, k, g.y_scrape, len(c), shape.mass, y,
-                          self.s["normal_stress"] * g.area, self.s["load_ramp_time"])
+                          "particles above y = %.4g m (the sample's solid fraction %.4f); lid of %d spheres (%.4g kg) "
+                          "placed at y = %.4g m; load %.4g N ramps over %.3g s", t, ke, settled_top, k, g.y_scrape,
+                          solid, len(c), shape.mass, y, self.s["normal_stress"] * g.area, self.s["load_ramp_time"])
 
     def _start_shear(self, t: float) -> None:
         v = self.s["shear_speed"]
@@ -577,6 +611,11 @@ class ShearCellScene(Scene):
             "mu": r["mu"], "mean_shear_force": r["shear_force"], "mean_normal_force": r["normal_force"],
             "ratio_std": r["ratio_std"], "window": np.array(r["window"], float), "n_samples": r["n_samples"],
             "load_error": self.load_error(),
+            "fill_solid_fraction": float(self.fill_info.get("solid_fraction", math.nan)),
+            "fill_bed_top": float(self.fill_info.get("bed_top", math.nan)),
+            "fill_removed": int(self.fill_info.get("removed", 0)),
+            "fill_friction": float(self.s["fill_friction"] if self.s["fill_friction"] >= 0.0
+                                   else self.case.contact.particle_particle.mu),
             "inertial_number": inertial_number(self.s["shear_speed"], p.diameter, sigma, p.density),
             "@attrs": {"variant": self.s["variant"],
                        "shear_force": "-(F_ring,x + F_lid,x): the particles' horizontal force against the moving "
@@ -585,6 +624,10 @@ class ShearCellScene(Scene):
                        "bulk_friction": "mean(shear_force) / mean(normal_force + weight_above) over displacement "
                                         "in window (m)",
                        "inertial_number": "speed / (10 d) * d / sqrt(normal_stress / density)",
+                       "fill_solid_fraction": "solid fraction of the scraped sample from d above the floor to d "
+                                              "below its top (units counted by their centres)",
+                       "fill_friction": "particle-particle sliding friction of the fill (shear.fill_friction, or "
+                                        "the case's)",
                        "stop": self.note},
         })
         name = "bulk_friction" if not self.g.wall else "wall_friction"
@@ -598,7 +641,8 @@ class ShearCellScene(Scene):
               "lid_bid": np.int64(self.lid_bid), "y_lid0": self.y_lid0, "acc": self._acc.copy(),
               "k_sample": np.int64(self.k_sample), "note": self.note, "t_load": getattr(self, "t_load", math.nan),
               "load_log": np.array(self.load_log, float).reshape(-1, 4),
-              "lid_normal_body": getattr(self, "_lid_normal_body", np.zeros(3))}
+              "lid_normal_body": getattr(self, "_lid_normal_body", np.zeros(3)),
+              "fill_info": {k: float(v) for k, v in self.fill_info.items()}}
         for k, v in self.rec.items():
             st["rec_" + k] = np.array(v, float)
         return st
@@ -618,5 +662,8 @@ class ShearCellScene(Scene):
         self.t_load = float(d["t_load"])
         self.load_log = [tuple(r) for r in np.asarray(d["load_log"], float).reshape(-1, 4)]
         self._lid_normal_body = np.asarray(d["lid_normal_body"], float)
+        self.fill_info = {k: float(v) for k, v in d.get("fill_info", {}).items()}  # absent: written before it
+        if self.phase == "fill":
+            self._fill_friction()
         for k in self.rec:
             self.rec[k] = [float(x) for x in np.asarray(d["rec_" + k]).ravel()]

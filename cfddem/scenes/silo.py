@@ -86,9 +86,10 @@ from ..measure.silo import (VelocityField, bulk_density, centreline_velocity, ch
                             profile_measurements, surface_height)
 from ..particles.contact import check_contact_values
 from . import Scene
+from .common import check_fill_friction
 from .silo_internals import GROUP as INTERNALS_GROUP, KEYS as INTERNALS_KEYS, WALL_NAMES as INTERNALS_WALLS
 from .silo_internals import ChannelProbe, Internals, check_internals
-from ..schema import Key, wall_override
+from ..schema import Key, fill_friction, wall_override
 from ..schema import nonneg as _nonneg
 from ..schema import number as _f
 from ..schema import positive as _pos
@@ -231,9 +232,7 @@ SILO_KEYS = {
     "frictionless_fill": Key("bool", False, "-", "fill with zero sliding and rolling friction on every contact "
                              "(particles and walls), the case's friction from the gate opening on (a DEM stand-in "
                              "for a silo filled by hand in layers)"),
-    "fill_friction": Key("float", -1.0, "-", "particle-particle sliding friction during the fill (the blending "
-                         "thesis filled with 0.15 to pack densely), the case's value from the gate opening on; walls "
-                         "and rolling friction keep theirs (-1: the case's friction throughout)", lo=-1.0),
+    "fill_friction": fill_friction("the gate opening"),
     "settle_energy": _pos(2e-9, "J", "kinetic energy per particle below which the fill counts as settled"),
     "settle_check_interval": _pos(0.01, "s", "interval of the settled / clogged / empty checks"),
     "clog_time": _pos(0.5, "s", "no outflow for this long while particles remain just above the slot: clogged "
@@ -296,8 +295,7 @@ def check_silo_case(r: dict) -> None:
         raise CaseError("frame.rpm", "the silo runs in an inertial frame (0)")
     if s["fill_friction"] >= 0.0 and s["frictionless_fill"]:
         raise CaseError("silo.fill_friction", "give either a fill friction or frictionless_fill = true, not both")
-    if s["fill_friction"] != -1.0 and s["fill_friction"] < 0.0:
-        raise CaseError("silo.fill_friction", f"{s['fill_friction']:g} must be >= 0 (or -1: unchanged)")
+    check_fill_friction("silo", s["fill_friction"])
     if not s["outlet_width"] < s["width"] - 2 * d:
         raise CaseError("silo.outlet_width", f"{s['outlet_width']:g} m leaves no bottom: must be below "
                                              f"silo.width - 2 d = {s['width'] - 2 * d:g} m")

@@ -179,3 +179,31 @@ def test_fill_friction_sets_only_the_pair_sliding_friction_during_the_fill():
     with pytest.raises(CaseError, match="silo.fill_friction"):
         case_with(fill_friction=-0.5)
     assert case_with(fill_friction=0.15).resolved["silo"]["fill_friction"] == 0.15
+
+
+
+def test_fill_friction_is_kept_in_the_system_state():
+    """A checkpoint taken during a fill holds the fill's friction and the built values: the
+    resumed system has both, and setting the same friction again (the scene's resume) does not
+    force an extra force evaluation (which would break a bit-identical restart)."""
+    from cfddem.particles import LinearContact, ParticleSystem, PlaneWall
+    from cfddem.particles.contact import P_MU, P_MUR
+
+    def build():
+        pp = LinearContact(k_n=1000.0, e_n=0.5, e_t=0.5, mu=0.35, mu_r=0.1)
+        pw = LinearContact(k_n=1000.0, e_n=0.5, e_t=0.5, mu=0.17, mu_r=0.1)
+        s = ParticleSystem(pp=pp, walls=[PlaneWall(contact=pw, point=(0, 0, 0), normal=(0, 1, 0))], dt=1e-5)
+        return s
+
+    s = build()
+    s.add_particles([[0.0, 0.002, 0.0]], 0.0, 0.002, 1000.0)
+    s.set_friction(False, pp_mu=0.15)
+    s.step(5)
+    r = build()
+    r.set_state(s.get_state())
+    assert r._pp_params[0, [P_MU, P_MUR]].tolist() == [0.15, 0.1] and r._wpar[0, P_MU] == 0.17
+    stale = r._forces_stale
+    r.set_friction(False, pp_mu=0.15)
+    assert r._forces_stale == stale
+    r.set_friction(True)
+    assert r._pp_params[0, [P_MU, P_MUR]].tolist() == [0.35, 0.1] and r._forces_stale
