@@ -35,9 +35,9 @@ import numpy as np
 from .errors import CaseError
 
 RUN_KEYS = ["label", "rotation", "mu_r", "x", "seed", "friction", "rise", "shear_force", "normal_force", "load_error",
-            "inertial_number", "n_sample", "status", "wall_s", "folder"]
+            "inertial_number", "n_sample", "solid_fraction", "status", "wall_s", "folder"]
 POINT_KEYS = ["label", "rotation", "mu_r", "x", "friction", "friction_std", "n", "rise", "jammed", "shear_force",
-              "normal_force", "load_error", "wall_s"]
+              "normal_force", "load_error", "solid_fraction", "wall_s"]
 #: a mean ratio above this is no friction of the sample: a shear force larger than the normal load
 #: can only be carried by the rings' walls squeezing a sample that locks between them
 JAMMED = 1.0
@@ -140,7 +140,7 @@ def calibrate(case_dir, xs, murs, out, overrides=(), threads=None, overwrite=Fal
         case = load_case(case_dir, overrides=ov)
         row = {"label": label, "rotation": rot, "mu_r": mur, "x": x, "seed": seed, "friction": math.nan,
                "rise": math.nan, "shear_force": math.nan, "normal_force": math.nan, "load_error": math.nan,
-               "inertial_number": math.nan, "n_sample": 0, "status": "", "wall_s": math.nan,
+               "inertial_number": math.nan, "n_sample": 0, "solid_fraction": math.nan, "status": "", "wall_s": math.nan,
                "folder": sub.name}
         if not overwrite and run_is_complete(sub, case):
             row["status"] = "done"
@@ -160,7 +160,8 @@ def calibrate(case_dir, xs, murs, out, overrides=(), threads=None, overwrite=Fal
                        inertial_number=float(sh["inertial_number"]), n_sample=int(sh["n_samples"]),
                        rise=window_rise(sh["displacement"], sh["shear_force"],
                                         np.asarray(sh["normal_force"], float) + np.asarray(sh["weight_above"], float),
-                                        sh["window"]))
+                                        sh["window"]),
+                       solid_fraction=float(sh.get("fill_solid_fraction", math.nan)))
         except (KeyError, OSError) as e:
             row["status"] = f"{row['status']} (no measurement: {e})"
         done_here.append(row)
@@ -182,7 +183,7 @@ def _read_runs(out: Path) -> list[dict]:
     with open(p, newline="") as f:
         for r in csv.DictReader(f):
             for k in ("mu_r", "x", "friction", "rise", "shear_force", "normal_force", "load_error", "inertial_number",
-                      "wall_s"):
+                      "solid_fraction", "wall_s"):
                 r[k] = float(r.get(k) or "nan")
             r["seed"] = int(r["seed"])
             r["n_sample"] = int(r["n_sample"])
@@ -211,7 +212,7 @@ def points(rows: list[dict]) -> list[dict]:
                     "friction_std": float(np.std(f[ok], ddof=1)) if n > 1 else math.nan, "n": n,
                     "rise": mean("rise"), "jammed": int(n > 0 and mean("friction") > JAMMED),
                     "shear_force": mean("shear_force"), "normal_force": mean("normal_force"),
-                    "load_error": mean("load_error"),
+                    "load_error": mean("load_error"), "solid_fraction": mean("solid_fraction"),
                     "wall_s": float(np.nansum([r["wall_s"] for r in rs]))})
     return pts
 
@@ -231,17 +232,19 @@ def _write(rows, out: Path, name: str, xkey: str, target) -> None:
     title = name.replace("_", " ")
     lines = [f"# Shear-cell calibration: {title} against `{xkey}`", "",
              "Mean and standard deviation over the replicas (n: runs with a measurement); rise: how much "
-             "the ratio still grows from the first to the second half of the window (0: steady); forces are "
+             "the ratio still grows from the first to the second half of the window (0: steady); solid fraction: "
+             "the scraped sample's at the end of the fill; forces are "
              "means over the window; wall time summed over the replicas.  JAMMED: a ratio above "
              f"{JAMMED:g}, a shear force larger than the normal load, which only the rings' walls can carry "
              "(the sample locks between the rings instead of shearing; not drawn in the chart).", "",
              f"| sample | rotation | mu_r | {xkey} | {title} | std | n | rise | shear force (N) | N + W (N) |"
-             " load error | wall (s) |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             " load error | solid fraction | wall (s) |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for p in pts:
         jam = " JAMMED" if p["jammed"] else ""
         lines.append(f"| {p['label']} | {p['rotation']} | {p['mu_r']:g} | {p['x']:g} | {p['friction']:.4f}{jam} | "
                      f"{p['friction_std']:.3f} | {p['n']} | {100 * p['rise']:+.0f} % | {p['shear_force']:.4g} | "
-                     f"{p['normal_force']:.4g} | {100 * p['load_error']:.2g} % | {p['wall_s']:.0f} |")
+                     f"{p['normal_force']:.4g} | {100 * p['load_error']:.2g} % | {p['solid_fraction']:.3f} | "
+                     f"{p['wall_s']:.0f} |")
     bad = [r for r in rows if r["status"] != "done"]
     if bad:
         lines += ["", "Runs that did not finish: " + ", ".join(f"{r['folder']} ({r['status']})" for r in bad)]

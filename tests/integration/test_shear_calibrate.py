@@ -39,6 +39,10 @@ def test_calibrate_sweep_writes_table_and_plot(write_case, tmp_path, one_numba_t
     assert f[1] > f[0] + 0.05
     assert f[2] > f[0] + 0.08
     assert all(abs(float(r["load_error"])) < 0.01 for r in rows)
+    # the scraped sample's solid fraction of each point (a random packing of spheres: 0.55-0.64;
+    # a fill without friction packs densest)
+    phi = [float(r["solid_fraction"]) for r in rows]
+    assert all(0.5 < x < 0.65 for x in phi) and phi[0] > phi[2]
     assert (out / "calibration.png").stat().st_size > 5000
     md = (out / "calibration.md").read_text()
     assert "| spheres | free | 0 | 0.1 |" in md and "Target bulk friction 0.3" in md
