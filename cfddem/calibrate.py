@@ -205,7 +205,7 @@ def points(rows: list[dict]) -> list[dict]:
         n = int(ok.sum())
 
         def mean(k):
-            v = np.array([r.get(k, math.nan) for r in rs], float)[ok]
+            v = np.array([r[k] for r in rs], float)[ok]
             return float(np.mean(v)) if n else math.nan
 
         pts.append({"label": lab, "rotation": rot, "mu_r": mur, "x": x, "friction": mean("friction"),

@@ -118,11 +118,12 @@ def test_an_interrupted_run_stops_the_sweep(write_case, tmp_path, monkeypatch, c
 
 def test_points_mean_and_std():
     rows = [dict(label="a", rotation="free", mu_r=0.0, x=0.2, friction=v, rise=0.1, shear_force=1.0, normal_force=2.0,
-                 load_error=0.0, wall_s=1.0) for v in (0.3, 0.4, math.nan)]
+                 load_error=0.0, solid_fraction=0.58, wall_s=1.0) for v in (0.3, 0.4, math.nan)]
     rows += [dict(rows[0], x=1.0, friction=v) for v in (13.8, 14.6)]
     p, q = points(rows)
     assert p["n"] == 2 and p["friction"] == pytest.approx(0.35) and p["friction_std"] == pytest.approx(0.0707107)
     assert p["wall_s"] == 3.0 and p["rise"] == pytest.approx(0.1) and not p["jammed"]
+    assert p["solid_fraction"] == pytest.approx(0.58)
     assert q["jammed"]  # a shear force 14 times the normal load is no friction of the sample
 
 
