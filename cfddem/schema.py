@@ -65,6 +65,14 @@ def fill_friction(until: str) -> Key:
                "theirs (-1: the case's friction throughout)", lo=-1.0)
 
 
+def fill_rolling_friction(until: str) -> Key:
+    """A scene's ``fill_rolling_friction``: the particle-particle rolling friction while its
+    sample is filled, the case's value from ``until`` on (-1: the case's throughout)."""
+    return Key("float", -1.0, "-", "particle-particle rolling friction during the fill (a fill with a high rolling "
+               f"friction stays loose: 0 packs it densely), the case's value from {until} on; walls keep theirs "
+               "(-1: the case's rolling friction throughout)", lo=-1.0)
+
+
 def wall_override(what: str) -> dict:
     """Per-wall-group contact overrides of a scene (unset: contact.particle_wall): every key of
     every registered contact law (:func:`cfddem.particles.contact.contact_keys`);

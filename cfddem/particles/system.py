@@ -1304,22 +1304,27 @@ class ParticleSystem:
             self._wtw[:n, k] = 0.0
         self._forces_stale = True
 
-    def set_friction(self, on: bool, pp_mu: float | None = None) -> None:
+    def set_friction(self, on: bool, pp_mu: float | None = None, pp_mur: float | None = None) -> None:
         """Switch the sliding and rolling friction of every contact (particle-particle, walls,
         mesh walls) off, or back on to the values the system was built with: a frictionless
         fill (the silo's ``frictionless_fill``).  Off keeps the tangential springs and dampers
         (with mu = 0 the Coulomb limit makes the tangential force zero).  With ``pp_mu`` (and
         ``on`` False) only the particle-particle sliding friction is set, to ``pp_mu``, and
         everything else keeps its built value: a fill with a lower friction (the silo's
-        ``fill_friction``, the blending thesis's 0.15)."""
+        ``fill_friction``, the blending thesis's 0.15); ``pp_mur`` likewise sets the
+        particle-particle rolling friction alone (``fill_rolling_friction``)."""
         tables = self._friction_tables()
         if self._friction_built is None:
             self._friction_built = [t[:, [P_MU, P_MUR]].copy() for t in tables]
+        pair_only = not on and (pp_mu is not None or pp_mur is not None)
         changed = False
         for k, (t, built) in enumerate(zip(tables, self._friction_built)):
-            new = np.broadcast_to(built if on or pp_mu is not None else 0.0, built.shape).copy()
-            if not on and pp_mu is not None and k == 0:
-                new[:, 0] = float(pp_mu)
+            new = np.broadcast_to(built if on or pair_only else 0.0, built.shape).copy()
+            if pair_only and k == 0:
+                if pp_mu is not None:
+                    new[:, 0] = float(pp_mu)
+                if pp_mur is not None:
+                    new[:, 1] = float(pp_mur)
             changed |= not np.array_equal(t[:, [P_MU, P_MUR]], new)
             t[:, [P_MU, P_MUR]] = new
         if changed:  # the same friction again (a scene's resume) leaves the forces as they are

@@ -76,8 +76,8 @@ from ..errors import CaseError, RunError
 from ..measure.shear import bulk_friction, inertial_number, lid_disc, slab_solid_fraction
 from ..particles.contact import check_contact_values
 from . import Scene
-from .common import check_fill_friction
-from ..schema import Key, fill_friction, wall_override
+from .common import apply_fill_friction, check_fill_friction, fill_friction_set
+from ..schema import Key, fill_friction, fill_rolling_friction, wall_override
 from ..schema import nonneg as _nonneg
 from ..schema import number as _f
 from ..schema import positive as _pos
@@ -103,6 +103,7 @@ SHEAR_KEYS = {
     "fill_time": _nonneg(0.2, "s", "earliest end of the fill (settled check)"),
     "settle_energy": _pos(1e-8, "J", "kinetic energy per particle below which the fill counts as settled"),
     "fill_friction": fill_friction("the scraping (before the lid is placed)"),
+    "fill_rolling_friction": fill_rolling_friction("the scraping (before the lid is placed)"),
     "consolidate_time": _nonneg(0.05, "s", "shortest consolidation after the lid is placed"),
     "lid_settle_speed": _pos(2e-3, "m/s", "consolidation ends when the lid's vertical speed is below this"),
     "lid_sphere_diameter": _nonneg(0.0, "m", "diameter of the lid's glued spheres (0: particles.diameter)"),
@@ -129,7 +130,7 @@ def check_shear_case(r: dict) -> None:
         raise CaseError("frame.rpm", "the shear cell runs in a fixed frame (rpm = 0)")
     for grp in ("rings", "plate"):
         check_contact_values(f"shear.{grp}", s[grp])
-    check_fill_friction("shear", s["fill_friction"])
+    check_fill_friction("shear", s)
     D = s["cell_diameter"]
     if D < 10 * d:
         raise CaseError("shear.cell_diameter", f"{D:g} m is less than 10 particle diameters ({10 * d:g} m)")
@@ -399,9 +400,19 @@ class ShearCellScene(Scene):
 
     # ------------------------------------------------------------------ hooks
     def _fill_friction(self) -> None:
-        """The fill's particle-particle sliding friction (``fill_friction``), until the scraping."""
-        if self.s["fill_friction"] >= 0.0:
-            self.sys.set_friction(False, pp_mu=self.s["fill_friction"])
+        """The fill's particle-particle sliding and rolling friction (``fill_friction``,
+        ``fill_rolling_friction``), until the scraping."""
+        apply_fill_friction(self.sys, self.s)
+
+    def _fill_mu(self) -> float:
+        """The fill's particle-particle sliding friction (``fill_friction`` or the case's)."""
+        v = self.s["fill_friction"]
+        return float(v if v >= 0.0 else self.case.contact.particle_particle.mu)
+
+    def _fill_mur(self) -> float:
+        """The fill's particle-particle rolling friction (``fill_rolling_friction`` or the case's)."""
+        v = self.s["fill_rolling_friction"]
+        return float(v if v >= 0.0 else self.case.contact.particle_particle.mu_r)
 
     def sample_solid_fraction(self, bed_top: float) -> float:
         """Solid fraction of the scraped sample between one diameter above the floor and one
@@ -434,9 +445,10 @@ class ShearCellScene(Scene):
         self.sim.log.info("shear cell: %d %s on a lattice up to y = %.4g m; rings D = %.4g m, base %.4g m, "
                           "shear ring %.4g m offset %.3g mm%s", len(pos), p.clump if shape is not None else "spheres",
                           float(pos[:, 1].max()), 2 * self.g.R, self.g.Hb, self.g.Hs, 1e3 * self.g.off,
-                          f"; filled with particle friction {self.s['fill_friction']:g} (the case's "
-                          f"{self.case.contact.particle_particle.mu:g} from the scraping on)"
-                          if self.s["fill_friction"] >= 0.0 else "")
+                          f"; filled with particle friction {self._fill_mu():g}, rolling friction "
+                          f"{self._fill_mur():g} (the case's {self.case.contact.particle_particle.mu:g}, "
+                          f"{self.case.contact.particle_particle.mu_r:g} from the scraping on)"
+                          if fill_friction_set(self.s) else "")
 
     def max_steps(self) -> int:
         return self.s["check_steps"]
@@ -504,7 +516,7 @@ class ShearCellScene(Scene):
         sys_ = self.sys
         g = self.g
         sys_.set_wall_active("mould", False)  # lifted off: what it held is above the scrape level
-        if self.s["fill_friction"] >= 0.0:
+        if fill_friction_set(self.s):
             sys_.set_friction(True)  # the case's friction for the consolidation and the shear
         if self.case.particles.rotation == "locked":
             sys_.lock_rotation()  # the sample was poured with free rotation (particles.rotation)
@@ -614,8 +626,8 @@ class ShearCellScene(Scene):
             "fill_solid_fraction": float(self.fill_info.get("solid_fraction", math.nan)),
             "fill_bed_top": float(self.fill_info.get("bed_top", math.nan)),
             "fill_removed": int(self.fill_info.get("removed", 0)),
-            "fill_friction": float(self.s["fill_friction"] if self.s["fill_friction"] >= 0.0
-                                   else self.case.contact.particle_particle.mu),
+            "fill_friction": self._fill_mu(),
+            "fill_rolling_friction": self._fill_mur(),
             "inertial_number": inertial_number(self.s["shear_speed"], p.diameter, sigma, p.density),
             "@attrs": {"variant": self.s["variant"],
                        "shear_force": "-(F_ring,x + F_lid,x): the particles' horizontal force against the moving "
@@ -628,6 +640,8 @@ class ShearCellScene(Scene):
                                               "below its top (units counted by their centres)",
                        "fill_friction": "particle-particle sliding friction of the fill (shear.fill_friction, or "
                                         "the case's)",
+                       "fill_rolling_friction": "particle-particle rolling friction of the fill "
+                                                "(shear.fill_rolling_friction, or the case's)",
                        "stop": self.note},
         })
         name = "bulk_friction" if not self.g.wall else "wall_friction"

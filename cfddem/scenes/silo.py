@@ -86,10 +86,10 @@ from ..measure.silo import (VelocityField, bulk_density, centreline_velocity, ch
                             profile_measurements, surface_height)
 from ..particles.contact import check_contact_values
 from . import Scene
-from .common import check_fill_friction
+from .common import apply_fill_friction, check_fill_friction, fill_friction_set
 from .silo_internals import GROUP as INTERNALS_GROUP, KEYS as INTERNALS_KEYS, WALL_NAMES as INTERNALS_WALLS
 from .silo_internals import ChannelProbe, Internals, check_internals
-from ..schema import Key, fill_friction, wall_override
+from ..schema import Key, fill_friction, fill_rolling_friction, wall_override
 from ..schema import nonneg as _nonneg
 from ..schema import number as _f
 from ..schema import positive as _pos
@@ -233,6 +233,7 @@ SILO_KEYS = {
                              "(particles and walls), the case's friction from the gate opening on (a DEM stand-in "
                              "for a silo filled by hand in layers)"),
     "fill_friction": fill_friction("the gate opening"),
+    "fill_rolling_friction": fill_rolling_friction("the gate opening"),
     "settle_energy": _pos(2e-9, "J", "kinetic energy per particle below which the fill counts as settled"),
     "settle_check_interval": _pos(0.01, "s", "interval of the settled / clogged / empty checks"),
     "clog_time": _pos(0.5, "s", "no outflow for this long while particles remain just above the slot: clogged "
@@ -293,9 +294,10 @@ def check_silo_case(r: dict) -> None:
         raise CaseError("gravity.inclination_deg", "the silo needs gravity along -y (inclination 0)")
     if r["frame"]["rpm"] != 0.0:
         raise CaseError("frame.rpm", "the silo runs in an inertial frame (0)")
-    if s["fill_friction"] >= 0.0 and s["frictionless_fill"]:
-        raise CaseError("silo.fill_friction", "give either a fill friction or frictionless_fill = true, not both")
-    check_fill_friction("silo", s["fill_friction"])
+    for key in ("fill_friction", "fill_rolling_friction"):
+        if s[key] >= 0.0 and s["frictionless_fill"]:
+            raise CaseError(f"silo.{key}", "give either a fill friction or frictionless_fill = true, not both")
+    check_fill_friction("silo", s)
     if not s["outlet_width"] < s["width"] - 2 * d:
         raise CaseError("silo.outlet_width", f"{s['outlet_width']:g} m leaves no bottom: must be below "
                                              f"silo.width - 2 d = {s['width'] - 2 * d:g} m")
@@ -770,11 +772,12 @@ class SiloScene(Scene):
         return q(h), q(h + ny), float(np.sum(e[xs, h:h + ny, zs])) * grid.cell_volume
 
     def _fill_friction(self) -> None:
-        """The fill's friction: none (``frictionless_fill``) or ``fill_friction`` between particles."""
+        """The fill's friction: none (``frictionless_fill``) or ``fill_friction`` /
+        ``fill_rolling_friction`` between particles."""
         if self.s["frictionless_fill"]:
             self.sim.system.set_friction(False)
-        elif self.s["fill_friction"] >= 0.0:
-            self.sim.system.set_friction(False, pp_mu=self.s["fill_friction"])
+        else:
+            apply_fill_friction(self.sim.system, self.s)
 
     def _pour(self, t: float) -> None:
         """Insert the pour layers that are due (each only if it overlaps nothing)."""
@@ -967,7 +970,7 @@ class SiloScene(Scene):
                               float(np.interp(y15, st["y"], st["janssen"])), st["z_c"], st["K"])
         self.fill["kinetic_energy_per_particle"] = ke
         sys_.set_wall_active("gate", False)
-        if self.s["frictionless_fill"] or self.s["fill_friction"] >= 0.0:
+        if self.s["frictionless_fill"] or fill_friction_set(self.s):
             sys_.set_friction(True)
         if self.case.particles.rotation == "locked":
             sys_.lock_rotation()

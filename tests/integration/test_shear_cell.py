@@ -166,6 +166,29 @@ def test_wall_friction_variant(write_case, tmp_path, one_numba_thread):
     assert abs(float(m["shear"]["load_error"])) < 0.01
 
 
+def test_fill_rolling_friction_packs_a_high_rolling_friction_fill_denser(write_case, tmp_path, one_numba_thread):
+    """``shear.fill_rolling_friction``: with the case's rolling friction mu_r = 0.5 the fill
+    stays loose (solid fraction 0.30); filled at mu_r = 0 (same lattice and sliding friction) it
+    settles at 0.55; the case's mu_r holds from the scraping on and the fill's value is recorded."""
+    from cfddem.particles.contact import P_MUR
+
+    d = write_case(CASE.format(clump="none", variant="bulk", n=330), name="fr")
+    phi = {}
+    for fr in (-1.0, 0.0):
+        out = tmp_path / f"fr{fr}"
+        sim = Simulation(load_case(d, overrides=["contact.particle_particle.mu_r=0.5", f"shear.fill_rolling_friction={fr}",
+                                                 "shear.shear_distance=0.0005"]), out, echo=False, progress=False)
+        assert sim.run().status == "done"
+        sh = read_measurements(out / "results.h5")["shear"]
+        phi[fr] = float(sh["fill_solid_fraction"])
+        assert float(sh["fill_rolling_friction"]) == (0.5 if fr < 0 else 0.0)
+        assert float(sh["fill_friction"]) == 0.5
+        assert np.all(sim.system._pp_params[:, P_MUR] == 0.5)
+    # measured: 0.30 with the case's mu_r = 0.5, 0.55 filled at mu_r = 0
+    assert 0.50 < phi[0.0] < 0.64
+    assert phi[-1.0] < phi[0.0] - 0.1
+
+
 def test_fill_friction_packs_denser_and_holds_only_until_the_scraping(write_case, tmp_path, one_numba_thread):
     """``shear.fill_friction``: a frictionless fill of the same lattice settles denser than one
     at the case's mu = 0.5 (measured: solid fraction 0.59 against 0.54-0.55 over seeds 5 and 6);

@@ -181,6 +181,34 @@ def test_fill_friction_sets_only_the_pair_sliding_friction_during_the_fill():
     assert case_with(fill_friction=0.15).resolved["silo"]["fill_friction"] == 0.15
 
 
+def test_fill_rolling_friction_sets_only_the_pair_rolling_friction_during_the_fill():
+    """``fill_rolling_friction``: the pairs' rolling friction alone, or with the sliding
+    friction; the walls keep theirs; the built values come back; bad values name the key."""
+    from cfddem.particles import LinearContact, ParticleSystem, PlaneWall
+    from cfddem.particles.contact import P_MU, P_MUR
+    from cfddem.scenes.common import apply_fill_friction, fill_friction_set
+
+    pp = LinearContact(k_n=1000.0, e_n=0.5, e_t=0.5, mu=0.35, mu_r=0.5)
+    pw = LinearContact(k_n=1000.0, e_n=0.5, e_t=0.5, mu=0.17, mu_r=0.2)
+    s = ParticleSystem(pp=pp, walls=[PlaneWall(contact=pw, point=(0, 0, 0), normal=(0, 1, 0))], dt=1e-5)
+    apply_fill_friction(s, {"fill_friction": -1.0, "fill_rolling_friction": 0.0})
+    assert s._pp_params[0, [P_MU, P_MUR]].tolist() == [0.35, 0.0]
+    assert s._wpar[0, [P_MU, P_MUR]].tolist() == [0.17, 0.2]
+    apply_fill_friction(s, {"fill_friction": 0.15, "fill_rolling_friction": 0.05})
+    assert s._pp_params[0, [P_MU, P_MUR]].tolist() == [0.15, 0.05]
+    s.set_friction(True)
+    assert s._pp_params[0, [P_MU, P_MUR]].tolist() == [0.35, 0.5] and s._wpar[0, [P_MU, P_MUR]].tolist() == [0.17, 0.2]
+    apply_fill_friction(s, {"fill_friction": -1.0, "fill_rolling_friction": -1.0})  # neither: unchanged
+    assert s._pp_params[0, [P_MU, P_MUR]].tolist() == [0.35, 0.5]
+    assert not fill_friction_set({"fill_friction": -1.0, "fill_rolling_friction": -1.0})
+    assert fill_friction_set({"fill_friction": -1.0, "fill_rolling_friction": 0.0})
+    with pytest.raises(CaseError, match="silo.fill_rolling_friction"):
+        case_with(fill_rolling_friction=0.0, frictionless_fill=True)
+    with pytest.raises(CaseError, match="silo.fill_rolling_friction"):
+        case_with(fill_rolling_friction=-0.2)
+    assert case_with(fill_rolling_friction=0.0).resolved["silo"]["fill_rolling_friction"] == 0.0
+
+
 
 def test_fill_friction_is_kept_in_the_system_state():
     """A checkpoint taken during a fill holds the fill's friction and the built values: the
