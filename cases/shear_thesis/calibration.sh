@@ -40,3 +40,12 @@ run --mu $MU --mu-r 0 --label clump4 --set 'particles.clump="pellet4"' --set she
 # 6. second fills of the clumps
 run --mu $MU --mu-r 0,0.1 --replicas 2 --label clump2 "${CLUMP2[@]}" --set shear.n_particles=$NC2 --out "$OUT/bulk"
 run --mu $MU --mu-r 0 --replicas 2 --label clump4 --set 'particles.clump="pellet4"' --set shear.n_particles=$NC4 --out "$OUT/bulk"
+# 7. every point of a row from the same dense packing: filled at mu = 0.15 (the thesis's silo
+#    fill), the case's friction from the scraping on; the mu_r = 0.5 row also filled at mu_r = 0
+#    (filled at its own mu_r it stays loose and jams: docs/shear-cell.md)
+run --mu $MU --mu-r 0,0.1 --replicas 2 --label spheres_fill015 --set shear.fill_friction=0.15 \
+    --set shear.n_particles=$NS --out "$OUT/bulk"
+run --mu $MU --mu-r 0 --rotation locked --replicas 2 --label spheres_fill015 --set shear.fill_friction=0.15 \
+    --set shear.n_particles=$NS --out "$OUT/bulk"
+run --mu $MU --mu-r 0.5 --replicas 2 --label spheres_fill015_r0 --set shear.fill_friction=0.15 \
+    --set shear.fill_rolling_friction=0 --set shear.n_particles=$NS --out "$OUT/bulk"
