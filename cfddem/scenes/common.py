@@ -22,21 +22,21 @@ def check_fill_friction(section: str, s: dict) -> None:
     """A scene's ``fill_friction`` and ``fill_rolling_friction``
     (:func:`cfddem.schema.fill_friction`, :func:`cfddem.schema.fill_rolling_friction`): -1 or >= 0."""
     for key in FILL_KEYS:
-        value = s.get(key, -1.0)
+        value = s[key]
         if value != -1.0 and value < 0.0:
             raise CaseError(f"{section}.{key}", f"{value:g} must be >= 0 (or -1: unchanged)")
 
 
 def fill_friction_set(s: dict) -> bool:
     """Whether a scene's section asks for a fill friction of its own (either key >= 0)."""
-    return any(s.get(key, -1.0) >= 0.0 for key in FILL_KEYS)
+    return any(s[key] >= 0.0 for key in FILL_KEYS)
 
 
 def apply_fill_friction(system, s: dict) -> None:
     """The fill's particle-particle sliding and rolling friction (the keys that are >= 0; the
     rest keep the case's) until the scene calls ``system.set_friction(True)``."""
     if fill_friction_set(s):
-        mu, mur = (s.get(key, -1.0) for key in FILL_KEYS)
+        mu, mur = (s[key] for key in FILL_KEYS)
         system.set_friction(False, pp_mu=mu if mu >= 0.0 else None, pp_mur=mur if mur >= 0.0 else None)
 
 

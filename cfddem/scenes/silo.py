@@ -86,7 +86,7 @@ from ..measure.silo import (VelocityField, bulk_density, centreline_velocity, ch
                             profile_measurements, surface_height)
 from ..particles.contact import check_contact_values
 from . import Scene
-from .common import apply_fill_friction, check_fill_friction, fill_friction_set
+from .common import FILL_KEYS, apply_fill_friction, check_fill_friction, fill_friction_set
 from .silo_internals import GROUP as INTERNALS_GROUP, KEYS as INTERNALS_KEYS, WALL_NAMES as INTERNALS_WALLS
 from .silo_internals import ChannelProbe, Internals, check_internals
 from ..schema import Key, fill_friction, fill_rolling_friction, wall_override
@@ -294,7 +294,7 @@ def check_silo_case(r: dict) -> None:
         raise CaseError("gravity.inclination_deg", "the silo needs gravity along -y (inclination 0)")
     if r["frame"]["rpm"] != 0.0:
         raise CaseError("frame.rpm", "the silo runs in an inertial frame (0)")
-    for key in ("fill_friction", "fill_rolling_friction"):
+    for key in FILL_KEYS:
         if s[key] >= 0.0 and s["frictionless_fill"]:
             raise CaseError(f"silo.{key}", "give either a fill friction or frictionless_fill = true, not both")
     check_fill_friction("silo", s)
