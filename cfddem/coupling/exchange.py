@@ -91,7 +91,7 @@ import numpy as np
 
 from cfddem._jit import kernel, parallel_kernel, prange
 from cfddem.coupling import drag as _drag
-from cfddem.coupling.mapping import MappingPlan
+from cfddem.coupling.mapping import MappingPlan, sphere_volumes
 from cfddem.errors import CaseError
 from cfddem.gas import GasSolver, Inlet, NoSlip, Periodic, PressureOutlet, StaggeredGrid
 from cfddem.gas.operators import c2f_grad_at, c2f_interp_at, f2c_interp_at, grad_to_face, interp_to_face
@@ -486,7 +486,7 @@ class CoupledGas:
         rad = np.ascontiguousarray(sys_.radius)
         mass = np.ascontiguousarray(sys_.mass)
         plan = MappingPlan(grid, pos, self.gas.bc, workspace=self._ws)  # the BCs' particle rules
-        vol = 4.0 / 3.0 * np.pi * rad**3
+        vol = sphere_volumes(rad, self._work("_vol", (n,)))
         gone = self._left_the_gas(pos) if self._leave and n else None
         if gone is not None:
             vol[gone] = 0.0  # no volume: no porosity, no pressure force (and no drag: below)
