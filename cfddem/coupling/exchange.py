@@ -514,8 +514,8 @@ class CoupledGas:
         vc = grid.cell_volume
         if n:
             d = 2.0 * rad
-            # the closure numpy-vectorised: its SIMD pow/expm1 beat the compiled scalar twin
-            # inside the kernel (0.75 against 1.9 ms on the 30k chute)
+            # the closure in its own parallel pass over the particles (the Beetstra closure
+            # compiled; docs/coupling.md, "Fused kernels")
             eps_a, re = plan.interpolate_slip(eps, gas.u.interior, gas.v.interior, gas.w.interior, vel, d,
                                               self.rho, self.mu)
             F = np.ascontiguousarray(self._F(eps_a, re), dtype=np.float64)
