@@ -802,7 +802,7 @@ def _forces_kernel(idx, wf, live, u, v, w, G, B, has_b, vel, keff, vol, store,
 
 
 @parallel_kernel
-def sphere_volumes_kernel(radius, out):
+def _sphere_volumes_kernel(radius, out):
     """``out[a] = 4/3 pi radius[a]^3`` (r r r: one pass, where numpy's ``r**3`` is a libm pow
     per value and two temporaries: 0.03 against 0.7 ms on 30k radii)."""
     c = 4.0 / 3.0 * np.pi
@@ -818,7 +818,7 @@ def sphere_volumes(radius, out=None) -> np.ndarray:
     r = np.ascontiguousarray(radius, dtype=np.float64).reshape(-1)
     if out is None:
         out = np.empty(r.shape[0])
-    sphere_volumes_kernel(r, out)
+    _sphere_volumes_kernel(r, out)
     return out
 
 
