@@ -33,7 +33,8 @@ Public API
     name -> function, lookup with a ``CaseError`` (and a suggestion) for unknown names,
     name -> integer id for compiled code.
 ``beetstra_scalar, ..., drag_scalar(cid, eps, re)``
-    compiled scalar twins (``@kernel(inline="always")``) for numba loops.
+    compiled scalar twins (``@kernel(inline="always")``) for numba loops;
+    ``drag_values(cid, eps, re, out)`` applies one to arrays in a parallel pass.
 ``beta, drag_force_factor, relaxation_time, terminal_velocity,
 minimum_fluidisation_velocity``
     derived quantities (see their docstrings for the derivations).
@@ -65,6 +66,7 @@ __all__ = [
     "di_felice_scalar",
     "koch_hill_scalar",
     "drag_scalar",
+    "drag_values",
     "beta",
     "drag_force_factor",
     "relaxation_time",
@@ -418,6 +420,29 @@ def drag_scalar(cid, eps, re):
     elif cid == 4:
         return koch_hill_scalar(eps, re)
     return np.nan
+
+
+@parallel_kernel
+def _drag_kernel(cid, e, r, out):
+    """``out[p] = drag_scalar(cid, e[p], r[p])`` in parallel over the values (one slot each,
+    so the same for any thread count)."""
+    for p in prange(out.shape[0]):
+        out[p] = drag_scalar(cid, e[p], r[p])
+    return 0
+
+
+def drag_values(cid, eps, re, out=None):
+    """F of closure ``cid`` (:func:`closure_id`) at each (eps, re) by its compiled twin, in one
+    parallel pass (flat float64 arrays; ``out`` reused when given).  The coupling's path: the
+    vectorised numpy forms pay serial libm calls for their powers (``eps**-3.65``,
+    ``Re**0.687``, ``eps**-chi``), a few ns to 25 ns a value each on AVX2 machines; the twins
+    agree with them to 2e-15 (tests/unit/test_drag.py)."""
+    e = np.ascontiguousarray(eps, dtype=np.float64).reshape(-1)
+    r = np.ascontiguousarray(re, dtype=np.float64).reshape(-1)
+    if out is None:
+        out = np.empty(e.shape[0])
+    _drag_kernel(np.int64(cid), e, r, out)
+    return out
 
 
 SCALAR_TWINS = {

@@ -377,6 +377,10 @@ class CoupledGas:
         self.mu = float(mu)
         self.closure = closure
         self._F = _drag.get_closure(closure)
+        try:  # a named closure (or one of its functions) runs by its compiled twin
+            self._cid = _drag.closure_id(closure)
+        except CaseError:  # a user's own callable F(eps, re): called as it is
+            self._cid = None
         self.N = int(coupling_interval)
         self.drag_treatment = drag_treatment
         self.eps_min = float(eps_min)
@@ -514,11 +518,14 @@ class CoupledGas:
         vc = grid.cell_volume
         if n:
             d = 2.0 * rad
-            # the closure in its own parallel pass over the particles (the Beetstra closure
-            # compiled; docs/coupling.md, "Fused kernels")
+            # the closure in its own parallel pass over the particles (its compiled twin;
+            # docs/coupling.md, "Fused kernels")
             eps_a, re = plan.interpolate_slip(eps, gas.u.interior, gas.v.interior, gas.w.interior, vel, d,
                                               self.rho, self.mu)
-            F = np.ascontiguousarray(self._F(eps_a, re), dtype=np.float64)
+            if self._cid is not None:
+                F = _drag.drag_values(self._cid, eps_a, re, self._work("_F", (n,)))
+            else:
+                F = np.ascontiguousarray(self._F(eps_a, re), dtype=np.float64)
             if self.drag_factor != 1.0:
                 F *= self.drag_factor
             Keff = self._work("_Keff", (n,))

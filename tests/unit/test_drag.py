@@ -158,3 +158,16 @@ def test_bad_inputs():
         drag.terminal_velocity(1.0, 1.2, D, MU)
     with pytest.raises(CaseError):
         drag.minimum_fluidisation_velocity(1.0, RHO_P, RHO_G, D, MU)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_drag_values_parallel_pass_equals_vectorised(name):
+    """The coupling's path (drag_values: the twin in a parallel pass) against the numpy form,
+    and the out array reused."""
+    eps = np.repeat(np.linspace(0.35, 1.0, 27), 33)
+    re = np.tile(np.concatenate([[0.0], np.logspace(-3, 4, 32)]), 27)
+    ref = drag.CLOSURES[name](eps, re)
+    out = np.full_like(eps, np.nan)
+    got = drag.drag_values(drag.closure_id(name), eps, re, out)
+    assert got is out
+    np.testing.assert_allclose(out, ref, rtol=2e-15, atol=0)
