@@ -112,24 +112,9 @@ def beetstra(eps, re):
     Re -> 0 (van der Hoef et al. 2005, J. Fluid Mech. 528:233, times eps).
     """
     eps, re = _prep(eps, re)
-    shape = eps.shape
-    e = np.ascontiguousarray(eps).reshape(-1)
-    r = np.ascontiguousarray(re).reshape(-1)
-    out = np.empty(e.shape)
-    _beetstra_kernel(e, r, out)
-    return _out(out.reshape(shape))
-
-
-@parallel_kernel
-def _beetstra_kernel(e, r, out):
-    """:func:`beetstra` value by value (:func:`_beetstra_value`), parallel over the values:
-    one logarithm and two exponentials a value.  (numpy's float64 exp, log and pow are
-    scalar libm calls on AVX2 machines, about 10-25 ns a value and serial; here the same
-    calls run in the parallel loop, and the powers Re^((1+4 phi)/2) and Re^0.657 come
-    from one log: 1.25 ms on 30k values with numpy's powers against 0.6 ms, one thread.)"""
-    for p in prange(out.shape[0]):
-        out[p] = _beetstra_value(e[p], r[p])
-    return 0
+    # value by value in one parallel pass (drag_values): one log and two exps a value, where
+    # numpy's powers took 1.25 ms on 30k values against 0.6 ms, one thread
+    return _out(drag_values(CLOSURE_IDS["beetstra"], eps, re).reshape(eps.shape))
 
 
 def wen_yu(eps, re):
@@ -425,7 +410,9 @@ def drag_scalar(cid, eps, re):
 @parallel_kernel
 def _drag_kernel(cid, e, r, out):
     """``out[p] = drag_scalar(cid, e[p], r[p])`` in parallel over the values (one slot each,
-    so the same for any thread count)."""
+    so the same for any thread count).  numpy's float64 exp, log and pow are scalar libm
+    calls on AVX2 machines, about 10-25 ns a value and serial; here the same calls run in
+    the parallel loop."""
     for p in prange(out.shape[0]):
         out[p] = drag_scalar(cid, e[p], r[p])
     return 0

@@ -18,7 +18,7 @@ L = 0.02
 PERIODIC = {s: Periodic() for s in ("x-", "x+", "y-", "y+", "z-", "z+")}
 
 
-def _box(density, seed=1, N=10, treatment="implicit", n_side=5):
+def _box(density, seed=1, N=10, treatment="implicit", n_side=5, closure="beetstra"):
     sys_ = ParticleSystem(pp=LinearContact(k_n=100.0, e_n=0.9, e_t=0.5, mu=0.3), walls=[], dt=1e-5,
                           periodic=((0.0, L),) * 3)
     rng = np.random.default_rng(seed)
@@ -28,7 +28,7 @@ def _box(density, seed=1, N=10, treatment="implicit", n_side=5):
     sys_.add_particles(P, 0.0, 0.5e-3, density)
     grid = StaggeredGrid((4, 4, 4), (L, L, L))
     cg = CoupledGas(sys_, grid, PERIODIC, rho=1.2, mu=1.8e-5, coupling_interval=N, drag_treatment=treatment,
-                    tol=1e-12)
+                    closure=closure, tol=1e-12)
     cg.gas.set_velocity(lambda x, y, z: (1.0 + 0 * x, 0.3 * np.sin(2 * np.pi * x / L), 0.2 * np.cos(2 * np.pi * y / L)))
     return sys_, cg
 
@@ -314,15 +314,7 @@ def test_named_closure_compiled_path_equals_its_numpy_form(name):
     from cfddem.coupling import drag
 
     def run(closure):
-        sys_ = ParticleSystem(pp=LinearContact(k_n=100.0, e_n=0.9, e_t=0.5, mu=0.3), walls=[], dt=1e-5,
-                              periodic=((0.0, L),) * 3)
-        rng = np.random.default_rng(3)
-        g1 = (np.arange(5) + 0.5) * L / 5
-        P = np.array(np.meshgrid(g1, g1, g1, indexing="ij")).reshape(3, -1).T + rng.uniform(-1e-3, 1e-3, (125, 3))
-        sys_.add_particles(P, 0.0, 0.5e-3, 2500.0)
-        cg = CoupledGas(sys_, StaggeredGrid((4, 4, 4), (L, L, L)), PERIODIC, rho=1.2, mu=1.8e-5,
-                        coupling_interval=5, closure=closure, tol=1e-12)
-        cg.gas.set_velocity(lambda x, y, z: (1.0 + 0 * x, 0.3 * np.sin(2 * np.pi * x / L), 0.0 * z))
+        sys_, cg = _box(2500.0, seed=3, N=5, closure=closure)
         for _ in range(4):
             assert cg.advance(5).ok
         return cg, sys_.ext_force.copy()
