@@ -53,6 +53,15 @@ _WALL_ARRAYS = ("whist", "won", "wfn", "wfw", "wtw")
 # contact point, tangential spring, overlap, |F_n|, force and torque on the mesh
 _MESH_ARRAYS = ("ms_mesh", "ms_n", "ms_q", "ms_h", "ms_ov", "ms_fn", "ms_fw", "ms_tw")
 _ROW_ARRAYS = _PARTICLE_ARRAYS + _WALL_ARRAYS + _MESH_ARRAYS
+# rows a rebuild need not carry into the new order (each permuted array costs a gather and a
+# copy of its rows): the reference positions (set to the positions); when a force pass follows
+# (a step's or a refresh's), the force and torque sums (zeroed and summed by the pair pass); the
+# clump index and offsets of free spheres (-1 and 0 in every row without clumps); the per-wall
+# force records, which the wall pass writes for every contact (and which are zero elsewhere):
+# zeroed instead
+_REBUILT_ROWS = ("force", "torque")
+_CLUMP_ROWS = ("body", "boff")
+_EVALUATED_WALL_ROWS = ("wfn", "wfw", "wtw")
 #: the one-pass pair search keeps this many slots per particle at most (a denser neighbourhood,
 #: e.g. a big particle among small ones, takes the count-and-fill passes instead)
 MAX_PAIR_SLOTS = 48
@@ -420,7 +429,11 @@ class ParticleSystem:
         return n < self.serial_below or numba.get_num_threads() == 1
 
     # ------------------------------------------------------------------ neighbour list
-    def _rebuild(self):
+    def _rebuild(self, forces_follow: bool = True):
+        """Sort the particles by cell and build the pair, wall and mesh lists.  ``forces_follow``:
+        a force pass comes next (in a step or a refresh), so the rows it writes anew are not
+        carried into the new order (_REBUILT_ROWS); False (a list asked for between steps)
+        carries every row."""
         n = self.n
         skin = self.skin
         rmax = float(self.radius.max()) if n else 0.0
@@ -443,9 +456,16 @@ class ParticleSystem:
         width = 3 * max(self.nw, self._K, 1)
         if getattr(self, "_scratch", None) is None or self._scratch.size < n * width:
             self._scratch = np.empty(self._cap * width)
+        clumped = self._has_clumps()
         for name in _ROW_ARRAYS:
             if name in _MESH_ARRAYS and not self.nm:
                 continue  # no mesh walls: every row holds the same (free slots)
+            if (name == "ref" or (forces_follow and name in _REBUILT_ROWS)
+                    or (name in _CLUMP_ROWS and not clumped)):
+                continue  # written before they are read again / the same in every row (-1, 0)
+            if forces_follow and name in _EVALUATED_WALL_ROWS:
+                getattr(self, "_" + name)[:n] = 0.0  # the next force pass writes the contacts' rows
+                continue
             nb.permute_rows(getattr(self, "_" + name), order, n, self._scratch, ser)
         old_index = self._prev[:n].copy()
         # swap buffers: the current list becomes the old one
@@ -993,7 +1013,7 @@ class ParticleSystem:
         if self.n == 0:
             return 0.0
         if self._need_rebuild:
-            self._rebuild()
+            self._rebuild(forces_follow=False)
         cur = self._cur
         e = float(it.elastic_energy(self._npairs, cur["pi"], cur["pj"], self._pos, self._radius,
                                     self._plen, cur["hist"], self._pp_params[0], self.n, self._wgeom,
@@ -1381,7 +1401,7 @@ class ParticleSystem:
     def pairs(self) -> np.ndarray:
         """(n_pairs, 2) current neighbour pairs as particle *ids* (min id, max id)."""
         if self._need_rebuild and self.n:
-            self._rebuild()
+            self._rebuild(forces_follow=False)
         cur = self._cur
         a = self._ids[cur["pi"][: self._npairs]]
         b = self._ids[cur["pj"][: self._npairs]]
