@@ -81,12 +81,18 @@ def _text(v) -> str:
     return v.decode() if isinstance(v, bytes) else str(v) if v is not None else ""
 
 
+def _status(st: str) -> str:
+    """A variant's status for the tables: the sweep's "skipped" (a finished run found in the
+    study folder and reused, cfddem.sweep) reads "done (reused)"."""
+    return "done (reused)" if st == "skipped" else st
+
+
 def read_variant(row: dict, variant: dict) -> dict:
     """One table row from a sweep row and its run's results.h5 (NaN and "" where missing)."""
     from .io.results import read_measurements
 
     out = {"label": variant["label"], "group": variant["group"], "x": variant["x"],
-           "status": row.get("status", ""), "wall_time": _num(row.get("wall_time", math.nan)), "m": None}
+           "status": _status(row.get("status", "")), "wall_time": _num(row.get("wall_time", math.nan)), "m": None}
     h5 = Path(row["out_dir"]) / "results.h5"
     m = read_measurements(h5) if h5.is_file() else {}
     s = m.get("silo", {})
@@ -183,6 +189,16 @@ def swept_panel(a, study: str, groups: dict, col: dict, key: str, scale: float, 
             a.plot(xs, ys, "o-", label=g)
     if study == "restitution":
         a.set_xscale("log")
+    # values read as they are (no "+5.834e2" offset), on an axis at least 4 % of their size tall, so
+    # that two nearly equal values do not look like a trend
+    a.ticklabel_format(axis="y", useOffset=False, style="plain")
+    ys = np.array([t[key] for ts in groups.values() for t in ts], float) * scale
+    ys = ys[np.isfinite(ys)]
+    if ys.size:
+        mid, half = 0.5 * (ys.max() + ys.min()), 0.5 * (ys.max() - ys.min())
+        half = max(1.15 * half, 0.02 * abs(mid))
+        if half > 0.0:
+            a.set_ylim(mid - half, mid + half)
     a.set_xlabel(X_LABEL[study])
     a.set_ylabel(ylabel)
     a.set_title(title, fontsize=9)
@@ -270,11 +286,13 @@ def plot_study(study: str, table: list[dict], out: Path) -> list[Path]:
             continue
         a.plot(np.asarray(st["pressure"]), np.asarray(st["y"]) * 1e3, "-", color=col[t["label"]], label=t["label"])
         a.plot(np.asarray(st["janssen"]), np.asarray(st["y"]) * 1e3, "--", color=col[t["label"]], lw=1)
+        if "hydrostatic" in st:
+            a.plot(np.asarray(st["hydrostatic"]), np.asarray(st["y"]) * 1e3, ":", color=col[t["label"]], lw=1)
     a.set_xlim(left=0.0)
     a.set_ylim(bottom=0.0)
     a.set_xlabel("vertical pressure -sigma_yy (Pa), cross-section average")
     a.set_ylabel("height above the floor (mm)")
-    a.set_title("end of the fill: coarse-grained (solid), Janssen (dashed)", fontsize=9)
+    a.set_title("end of the fill: coarse-grained (solid), Janssen (dashed),\nhydrostatic rho_b g (H - y) (dotted)", fontsize=9)
     a.legend(fontsize=7)
     for a in ax.ravel():
         a.grid(alpha=0.3)

@@ -159,3 +159,15 @@ def test_bed_top_leaves_out_the_rows_the_surface_left():
     f.count[2, 2] = 2.0  # under a quarter of the median: the row is not part of the bed
     assert bed_top(f) == pytest.approx(0.02)
     assert math.isnan(bed_top(VelocityField(0.0, 0.04, 0.0, 0.04, 0.01)))
+
+
+def test_a_reused_run_reads_done_in_the_study_table(tmp_path):
+    """The sweep marks a finished run that it found and reused "skipped"; the study's table
+    says "done (reused)" (a reader must not take it for a run left out), and keeps the others."""
+    from cfddem.silo_thesis import read_variant
+
+    v = {"label": "front/back mu 1", "group": "walls", "x": 1.0}
+    rows = [read_variant({"status": st, "wall_time": 12.0, "out_dir": str(tmp_path)}, v)
+            for st in ("skipped", "done", "failed")]
+    assert [r["status"] for r in rows] == ["done (reused)", "done", "failed"]
+    assert rows[0]["wall_time"] == 12.0 and math.isnan(rows[0]["flow_rate"])  # no results.h5 there
