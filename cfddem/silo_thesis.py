@@ -119,7 +119,20 @@ def read_variant(row: dict, variant: dict) -> dict:
         out["z_c"] = _num(st["z_c"])
         for k in ("K_x", "K_z"):  # the measured lateral pressure ratios (runs from before they were stored: NaN)
             out[k] = float(np.nanmean(np.asarray(st[k], float)[band])) if k in st and band.any() else math.nan
+    wl = s.get("fill_wall_load")
+    if wl is not None:  # runs from before it was stored: NaN
+        out.update(wall_shares([_text(x) for x in np.atleast_1d(wl["labels"])], np.atleast_1d(wl["share"])))
     return out
+
+
+def wall_shares(labels: list[str], share) -> dict:
+    """The walls' shares of the weight at the end of the fill (/measurements/silo/fill_wall_load),
+    in per cent, grouped: the front and back walls, the side walls (left, right), and the rest
+    (bottom plates or hopper walls, lips, gate, internals)."""
+    share = np.asarray(share, float)
+    fb = sum(float(v) for k, v in zip(labels, share) if k in ("front", "back"))
+    sd = sum(float(v) for k, v in zip(labels, share) if k in ("left", "right"))
+    return {"share_front_back": 100 * fb, "share_sides": 100 * sd, "share_floor": 100 * (float(share.sum()) - fb - sd)}
 
 
 def study_table(rows: list[dict], variants: list[dict]) -> list[dict]:
@@ -156,9 +169,12 @@ def write_study(study: str, table: list[dict], out: Path, notes: list[str]) -> l
     cols += [(f"B_{h}", f"B at {h} mm (mm)", "{:.3g}") for h in hs]
     cols += [(f"channel_{h}", f"channel at {h} mm (mm)", "{:.3g}") for h in hs]
     cols += [("stress_low", "sigma_v 0.1-0.2 H (Pa)", "{:.4g}"), ("janssen_low", "Janssen (Pa)", "{:.4g}"),
+             ("share_front_back", "weight on front/back walls (%)", "{:.3g}"),
+             ("share_sides", "weight on side walls (%)", "{:.3g}"),
              ("status", "status", ""), ("wall_time", "wall time (s)", "{:.0f}")]
     extra = [("x", "swept value", ""), ("fill_height", "fill height (m)", ""), ("clogged", "clogged", ""),
-             ("z_c", "Janssen z_c (m)", ""), ("K_x", "K_x measured", ""), ("K_z", "K_z measured", "")]
+             ("z_c", "Janssen z_c (m)", ""), ("K_x", "K_x measured", ""), ("K_z", "K_z measured", ""),
+             ("share_floor", "weight on the floor, lips, gate and other walls (%)", "")]
     extra += [(f"B_err_{h}", f"B error at {h} mm (mm)", "") for h in hs]
     extra += [(f"B_front_{h}", f"B front layer at {h} mm (mm)", "") for h in hs]
     for t in table:

@@ -706,6 +706,7 @@ class SiloScene(Scene):
         self.cl_t: list[float] = []
         self.cl_v: list[np.ndarray] = []
         self.stress: dict = {}
+        self.wall_load: dict = {}  # the walls' share of the weight at the end of the fill (_wall_load)
         self.outlet = None
         if self.case.gas.enabled:
             from ..measure.outlet_budget import OutletBudget
@@ -969,6 +970,11 @@ class SiloScene(Scene):
                                                                                                 st["pressure"])),
                               float(np.interp(y15, st["y"], st["janssen"])), st["z_c"], st["K"])
         self.fill["kinetic_energy_per_particle"] = ke
+        self.wall_load = self._wall_load()
+        wl_ = self.wall_load
+        self.sim.log.info("silo: at the end of the fill the walls carry %s of the weight %.4g N",
+                          ", ".join(f"{k} {100 * v:.3g} %" for k, v in zip(wl_["labels"], wl_["share"])),
+                          wl_["weight"])
         sys_.set_wall_active("gate", False)
         if self.s["frictionless_fill"] or fill_friction_set(self.s):
             sys_.set_friction(True)
@@ -991,6 +997,27 @@ class SiloScene(Scene):
         if not math.isfinite(self.fill["bulk_density"]):
             self.sim.log.warning("silo: the fill is too low for a bulk-density box 3 d (%.3g m) from the walls "
                                  "and the free surface", 3 * d)
+
+    def _wall_load(self) -> dict:
+        """How the bed's weight is carried at the end of the fill (before the gate opens): the
+        force of the particles on each wall (analytic and mesh, from the last force evaluation)
+        along gravity, over the weight of the particles.  A wall with friction that holds the bed
+        up carries a positive share; one whose friction pulls the bed down (the bed has moved up
+        along it last) a negative one.  The shares add up to 1 when the bed is at rest."""
+        sys_ = self.sim.system
+        gv = np.asarray(sys_.gravity, float)
+        gn = float(np.linalg.norm(gv))
+        down = gv / gn if gn > 0 else np.array([0.0, -1.0, 0.0])
+        labels = list(sys_.wall_labels())
+        forces = [np.asarray(sys_.wall_forces(), float).reshape(-1, 3)]
+        if sys_.nm:
+            labels += list(sys_.mesh_labels())
+            forces.append(np.asarray(sys_.mesh_forces(), float).reshape(-1, 3))
+        F = np.concatenate(forces) if labels else np.zeros((0, 3))
+        weight = float(np.sum(sys_.mass)) * gn
+        load = F @ down
+        share = load / weight if weight > 0 else np.full(len(labels), np.nan)
+        return {"labels": labels, "force": F, "load": load, "share": share, "weight": weight}
 
     def fill_measure(self, pos, mass) -> None:
         """Fill height and bulk density of the current packing (module doc for the box)."""
@@ -1081,6 +1108,16 @@ class SiloScene(Scene):
                            "within d of the centreline and of each height, full depth, at each check"}}
         if self.stress:
             silo["stress"] = {**self.stress, "@attrs": self.STRESS_ATTRS}
+        if self.wall_load:
+            wl_ = self.wall_load
+            silo["fill_wall_load"] = {
+                "labels": np.array(wl_["labels"], dtype="S"), "force": wl_["force"], "load": wl_["load"],
+                "share": wl_["share"], "weight": wl_["weight"],
+                "@attrs": {"force": "N, force of the particles on each wall (labels) just before the gate opened",
+                           "load": "N, that force along gravity (the part of the bed's weight the wall carries; "
+                                   "negative: the wall pulls the bed down)",
+                           "share": "load / weight; the shares add up to 1 for a bed at rest",
+                           "weight": "N, the particles' weight at the gate opening"}}
         arrays = {"mass_flow_rate": fit["rate"], "bulk_density": self.fill["bulk_density"],
                   "clogged": np.int64(1 if self.clogged else 0), "silo": silo,
                   "@attrs:mass_flow_rate": {"unit": "kg/s"}, "@attrs:bulk_density": {"unit": "kg/m3"},

@@ -62,6 +62,9 @@ def test_study_command_writes_table_csv_and_charts(root, tmp_path):
         assert math.isfinite(float(r["channel_5"])) and 0.0 < float(r["channel_5"]) <= 40.0
         assert r["flow_pattern"] in ("mass", "semi-mass", "internal")
         assert float(r["wall_time"]) > 0
+        shares = [float(r[k]) for k in ("share_front_back", "share_sides", "share_floor")]
+        assert abs(sum(shares) - 100.0) < 10.0 and shares[2] > 60.0  # per cent of the weight (a bed still settling)
+    assert float(rows[1]["share_front_back"]) == 0.0  # the periodic depth has no front/back walls
     md = (out / "front-back.md").read_text()
     assert "| front/back mu 0.3 |" in md and "| periodic depth |" in md and "B at 5 mm (mm)" in md
 
@@ -84,3 +87,27 @@ def test_end_of_fill_stress_against_janssen_and_hydrostatic(root, tmp_path, one_
     band = inside & (y > 0.1 * H) & (y < 0.5 * H)
     ratio = st["pressure"][band] / st["hydrostatic"][band]
     assert band.any() and np.all((ratio > 0.3) & (ratio < 1.3))  # a 150-particle bed: the weight, roughly
+
+
+def test_end_of_fill_wall_load_adds_up_to_the_weight(root, tmp_path, one_numba_thread):
+    """At the gate opening the scene stores how the walls carry the bed's weight: the force of
+    the particles on each wall along gravity over the weight; for a bed at rest the shares add
+    up to 1 and the floor (bottom plates, lips, gate) carries most of it (in this 150-particle
+    silo the walls with friction take or add a few per cent)."""
+    ov = [a for a in TINY if a != "--set"] + ["time.end_time=0.3", "silo.gate_time=0.28"]
+    sim = Simulation(load_case(root / "cases" / "silo_thesis_small", overrides=ov), tmp_path / "out",
+                     echo=False, progress=False)
+    assert sim.run().status == "done" and sim.scene.gate_open
+    wl = sim.scene.wall_load
+    share = dict(zip(wl["labels"], wl["share"]))
+    assert wl["weight"] == __import__("pytest").approx(float(np.sum(sim.system.mass)) * 9.81, rel=1e-12)
+    assert abs(sum(share.values()) - 1.0) < 0.02  # at rest: the walls carry the weight
+    floor = sum(v for k, v in share.items() if k.startswith(("bottom", "lip")) or k == "gate")
+    assert 0.8 < floor < 1.1 and share["gate"] > 0.05
+    assert abs(share["front"] + share["back"]) < 0.3  # 2-3 % either way in this thin silo
+    import h5py
+
+    with h5py.File(tmp_path / "out" / "results.h5", "r") as f:
+        g = f["measurements/silo/fill_wall_load"]
+        assert [x.decode() for x in g["labels"][()]] == list(wl["labels"])
+        np.testing.assert_allclose(g["share"][()], wl["share"], rtol=1e-12)
