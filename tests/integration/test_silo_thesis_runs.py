@@ -8,7 +8,9 @@ import os
 import subprocess
 import sys
 
+import h5py
 import numpy as np
+import pytest
 
 from cfddem.config import load_case
 from cfddem.simulation import Simulation
@@ -100,13 +102,11 @@ def test_end_of_fill_wall_load_adds_up_to_the_weight(root, tmp_path, one_numba_t
     assert sim.run().status == "done" and sim.scene.gate_open
     wl = sim.scene.wall_load
     share = dict(zip(wl["labels"], wl["share"]))
-    assert wl["weight"] == __import__("pytest").approx(float(np.sum(sim.system.mass)) * 9.81, rel=1e-12)
+    assert wl["weight"] == pytest.approx(float(np.sum(sim.system.mass)) * 9.81, rel=1e-12)
     assert abs(sum(share.values()) - 1.0) < 0.02  # at rest: the walls carry the weight
     floor = sum(v for k, v in share.items() if k.startswith(("bottom", "lip")) or k == "gate")
     assert 0.8 < floor < 1.1 and share["gate"] > 0.05
     assert abs(share["front"] + share["back"]) < 0.3  # 2-3 % either way in this thin silo
-    import h5py
-
     with h5py.File(tmp_path / "out" / "results.h5", "r") as f:
         g = f["measurements/silo/fill_wall_load"]
         assert [x.decode() for x in g["labels"][()]] == list(wl["labels"])
