@@ -98,6 +98,8 @@ WALL_GROUPS = {"front": "front_back", "back": "front_back", "left": "sides", "ri
                "bottom_left": "bottom", "bottom_right": "bottom", "hopper_left": "bottom",
                "hopper_right": "bottom", "lip_left": "bottom", "lip_right": "bottom", "gate": "gate_wall"}
 WALL_GROUPS.update(dict.fromkeys(INTERNALS_WALLS, INTERNALS_GROUP))  # blender internals: silo_internals.py
+#: the walls that silo.floor_drop lowers (those of them the silo has)
+FLOOR_WALLS = ("bottom_left", "bottom_right", "hopper_left", "hopper_right", "lip_left", "lip_right", "gate")
 #: the contact groups of the container (every wall but the gate): one mesh wall each with silo.walls = "mesh"
 CONTAINER_GROUPS = ("front_back", "sides", "bottom")
 
@@ -229,6 +231,14 @@ SILO_KEYS = {
                 "after gate_time where the kinetic energy per particle is below settle_energy",
                 choices=("time", "settled")),
     "gate_time": _nonneg(0.3, "s", "gate opening time ('time') or earliest opening time ('settled')"),
+    "floor_drop": _nonneg(0.0, "m", "once the fill has settled (gate = 'settled'), lower the floor (the bottom "
+                          "plates or hopper walls, the slot lips and the gate) by this much at floor_drop_speed, "
+                          "with the case's friction on from then, and open the gate once the bed has settled again: "
+                          "the bed slides down along the walls and mobilises their friction, as Janssen's analysis "
+                          "assumes (at most d/2; 0: no drop)"),
+    "floor_drop_speed": _pos(0.005, "m/s", "floor_drop: speed of the floor's descent"),
+    "floor_drop_wait": _nonneg(0.1, "s", "floor_drop: the gate opens at the first settled check at least this long "
+                               "after the floor has stopped"),
     "frictionless_fill": Key("bool", False, "-", "fill with zero sliding and rolling friction on every contact "
                              "(particles and walls), the case's friction from the gate opening on (a DEM stand-in "
                              "for a silo filled by hand in layers)"),
@@ -298,6 +308,16 @@ def check_silo_case(r: dict) -> None:
         if s[key] >= 0.0 and s["frictionless_fill"]:
             raise CaseError(f"silo.{key}", "give either a fill friction or frictionless_fill = true, not both")
     check_fill_friction("silo", s)
+    if s["floor_drop"] > 0.0:
+        if s["gate"] != "settled":
+            raise CaseError("silo.floor_drop", "needs silo.gate = 'settled' (the floor drops once the fill has "
+                                               "settled, and the gate opens once it has settled again)")
+        if s["walls"] == "mesh":
+            raise CaseError("silo.floor_drop", "lowers the scene's analytic floor: not with silo.walls = 'mesh' "
+                                               "(the floor is part of the meshes)")
+        if s["floor_drop"] > 0.5 * d:
+            raise CaseError("silo.floor_drop", f"{s['floor_drop']:g} m is more than half a particle diameter "
+                                               f"({0.5 * d:g} m): the side walls reach only d below the floor")
     if not s["outlet_width"] < s["width"] - 2 * d:
         raise CaseError("silo.outlet_width", f"{s['outlet_width']:g} m leaves no bottom: must be below "
                                              f"silo.width - 2 d = {s['width'] - 2 * d:g} m")
@@ -707,6 +727,10 @@ class SiloScene(Scene):
         self.cl_v: list[np.ndarray] = []
         self.stress: dict = {}
         self.wall_load: dict = {}  # the walls' share of the weight at the end of the fill (_wall_load)
+        # silo.floor_drop: phase 0 (not yet), 1 (the floor moving down), 2 (stopped at drop_done);
+        # drop_y0: the gate's height when it started
+        self.drop_phase = 0
+        self.drop_start = self.drop_end = self.drop_done = self.drop_y0 = math.nan
         self.outlet = None
         if self.case.gas.enabled:
             from ..measure.outlet_budget import OutletBudget
@@ -746,10 +770,13 @@ class SiloScene(Scene):
             self._insert(pos, -1)
             what = (f"{len(pos)} {'particles' if self.g.shape is None else self.g.shape.name + ' pellets'} on a "
                     f"lattice up to y = {self.g.lattice_top:.4g} m")
-        self.sim.log.info("silo: %s (side walls to %.4g m), gate %s", what, self.g.H,
+        drop = (f"; once settled the floor drops {1e3 * self.s['floor_drop']:.4g} mm at "
+                f"{1e3 * self.s['floor_drop_speed']:.4g} mm/s and the gate opens when the bed has settled again"
+                if self.s["floor_drop"] > 0.0 else "")
+        self.sim.log.info("silo: %s (side walls to %.4g m), gate %s%s", what, self.g.H,
                           f"opens at {self.s['gate_time']:g} s" if self.s["gate"] == "time" else
                           f"opens when settled (kinetic energy per particle < {self.s['settle_energy']:g} J) "
-                          f"from {self.s['gate_time']:g} s")
+                          f"from {self.s['gate_time']:g} s", drop)
 
     def _wire_outlet(self) -> None:
         """With gas: the coupling hands every gas step's per-particle forces to the outlet budget."""
@@ -823,6 +850,8 @@ class SiloScene(Scene):
                 nt = min(nt, due)
         if self.gate_open:
             nt = min(nt, self._next_field_time())
+        if self.drop_phase == 1:
+            nt = min(nt, self.drop_end)  # the floor stops at its depth, to the step
         return nt
 
     def _next_field_time(self) -> float:
@@ -851,6 +880,8 @@ class SiloScene(Scene):
                 self.outlet.close_block(t)
             while self._next_field_time() <= t + half:
                 self.k_field += 1
+        if self.drop_phase == 1 and t >= self.drop_end - half:
+            self._stop_drop(t)
         if t < self.k_check * self.check_dt - half:
             return
         while self.k_check * self.check_dt <= t + half:
@@ -859,7 +890,14 @@ class SiloScene(Scene):
             n = max(sys_.n, 1)
             ke = sys_.kinetic_energy() / n
             due = t >= self.s["gate_time"] - half
-            if due and (self.s["gate"] == "time" or (ke < self.s["settle_energy"] and not self.pouring)):
+            settled = ke < self.s["settle_energy"] and not self.pouring
+            if self.s["floor_drop"] > 0.0:
+                if self.drop_phase == 0 and due and settled:
+                    self._start_drop(t, ke)
+                if self.drop_phase != 2:
+                    return
+                due = due and t >= self.drop_done + self.s["floor_drop_wait"] - half
+            if due and (self.s["gate"] == "time" or settled):
                 self._open_gate(t, ke)
             return
         self.rec_t.append(t)
@@ -957,6 +995,43 @@ class SiloScene(Scene):
         "janssen": "gamma z_c (1 - exp(-(H - y) / z_c)), gamma = rho_b g, z_c = W T / (2 K (mu_side T + mu_front W)), "
                    "K = (1 - sin phi) / (1 + sin phi), tan phi = bulk_friction; H = M / (rho_b W T)"}
 
+    def _floor_walls(self) -> list[str]:
+        have = set(self.sim.system.wall_labels())
+        return [w for w in FLOOR_WALLS if w in have]
+
+    def _start_drop(self, t: float, ke: float) -> None:
+        """silo.floor_drop: the settled fill's floor starts to move down; the case's friction
+        from now on (a fill friction or a frictionless fill ends here, so that the drop
+        mobilises the friction the stress is compared with)."""
+        sys_ = self.sim.system
+        v, depth = self.s["floor_drop_speed"], self.s["floor_drop"]
+        if self.s["frictionless_fill"] or fill_friction_set(self.s):
+            sys_.set_friction(True)
+        self.drop_y0 = float(sys_.wall_position("gate")[1])
+        for w in self._floor_walls():
+            sys_.set_wall_velocity(w, (0.0, -v, 0.0))
+        self.drop_phase = 1
+        self.drop_start = t
+        self.drop_end = t + depth / v
+        self.sim.log.info("silo: the fill has settled at t = %.4g s (kinetic energy per particle %.3g J): the floor "
+                          "drops %.4g mm at %.4g mm/s, until t = %.4g s", t, ke, 1e3 * depth, 1e3 * v, self.drop_end)
+
+    def _stop_drop(self, t: float) -> None:
+        """The floor stops at the drop's depth (its last step's rounding put back)."""
+        sys_ = self.sim.system
+        walls = self._floor_walls()
+        for w in walls:
+            sys_.set_wall_velocity(w, (0.0, 0.0, 0.0))
+        rest = self.s["floor_drop"] - (self.drop_y0 - float(sys_.wall_position("gate")[1]))
+        if rest != 0.0:
+            for w in walls:
+                sys_.move_wall(w, (0.0, -rest, 0.0))
+        self.drop_phase = 2
+        self.drop_done = t
+        self.sim.log.info("silo: the floor stopped at t = %.4g s, %.4g mm lower; the gate opens at the first "
+                          "settled check from t = %.4g s", t, 1e3 * (self.drop_y0 - float(sys_.wall_position("gate")[1])),
+                          max(self.s["gate_time"], t + self.s["floor_drop_wait"]))
+
     def _open_gate(self, t: float, ke: float) -> None:
         sys_ = self.sim.system
         d = self.g.d
@@ -976,7 +1051,7 @@ class SiloScene(Scene):
                           ", ".join(f"{k} {100 * v:.3g} %" for k, v in zip(wl_["labels"], wl_["share"])),
                           wl_["weight"])
         sys_.set_wall_active("gate", False)
-        if self.s["frictionless_fill"] or fill_friction_set(self.s):
+        if (self.s["frictionless_fill"] or fill_friction_set(self.s)) and self.drop_phase == 0:
             sys_.set_friction(True)
         if self.case.particles.rotation == "locked":
             sys_.lock_rotation()
@@ -1108,6 +1183,13 @@ class SiloScene(Scene):
                            "within d of the centreline and of each height, full depth, at each check"}}
         if self.stress:
             silo["stress"] = {**self.stress, "@attrs": self.STRESS_ATTRS}
+        if self.drop_phase:
+            silo["floor_drop"] = {
+                "depth": self.s["floor_drop"], "speed": self.s["floor_drop_speed"], "start_time": self.drop_start,
+                "end_time": self.drop_done,
+                "@attrs": {"depth": "m the floor (bottom or hopper plates, lips, gate) was lowered once the fill "
+                                    "had settled", "speed": "m/s", "start_time": "s, the drop's start",
+                           "end_time": "s, the floor stopped (NaN: still moving when the run ended)"}}
         if self.wall_load:
             wl_ = self.wall_load
             silo["fill_wall_load"] = {
@@ -1153,6 +1235,7 @@ class SiloScene(Scene):
                 "fill": {k: (np.asarray(v) if not isinstance(v, (int, float)) else v) for k, v in self.fill.items()},
                 "win_all": self.win_all.get_state(), "win_front": self.win_front.get_state(),
                 "cl_t": np.array(self.cl_t, float),
+                "drop": np.array([self.drop_phase, self.drop_start, self.drop_end, self.drop_done, self.drop_y0]),
                 "cl_v": np.array(self.cl_v, float).reshape(len(self.cl_t), len(self.heights)),
                 **({"stress": self.stress} if self.stress else {}),
                 **({"probe": self.probe.get_state()} if self.probe else {}),
@@ -1178,10 +1261,14 @@ class SiloScene(Scene):
             self.win_all.set_state(d["win_all"])
             self.win_front.set_state(d["win_front"])
             self.cl_t = [float(x) for x in np.asarray(d["cl_t"]).ravel()]
-            self.cl_v = [np.asarray(v, float) for v in np.asarray(d["cl_v"], float).reshape(len(self.cl_t), -1)]
+            self.cl_v = [np.asarray(v, float) for v in np.asarray(d["cl_v"], float).reshape(len(self.cl_t), len(self.heights))]
         if "stress" in d:
             self.stress = {k: v for k, v in d["stress"].items()}
-        if not self.gate_open:
+        if "drop" in d:
+            dr = np.asarray(d["drop"], float)
+            self.drop_phase = int(dr[0])
+            self.drop_start, self.drop_end, self.drop_done, self.drop_y0 = (float(x) for x in dr[1:5])
+        if not self.gate_open and self.drop_phase == 0:  # (from the drop on, the case's friction)
             self._fill_friction()
         if self.probe:
             self.probe.set_state(d["probe"])

@@ -111,3 +111,72 @@ def test_end_of_fill_wall_load_adds_up_to_the_weight(root, tmp_path, one_numba_t
         g = f["measurements/silo/fill_wall_load"]
         assert [x.decode() for x in g["labels"][()]] == list(wl["labels"])
         np.testing.assert_allclose(g["share"][()], wl["share"], rtol=1e-12)
+
+
+def _tiny_drop_case(root, *extra):
+    ov = [a for a in TINY if a != "--set"] + ["time.end_time=0.4", "silo.gate='settled'",
+                                              "silo.floor_drop_wait=0.05", *extra]
+    return load_case(root / "cases" / "silo_thesis_small", overrides=ov)
+
+
+def test_floor_drop_lowers_the_floor_and_mobilises_the_front_back_friction(root, tmp_path, one_numba_thread):
+    """silo.floor_drop: once the fill has settled the floor (bottom plates, lips, gate) moves down
+    by exactly the drop at the set speed, the gate opens a wait later, and the front and back
+    walls, which pulled the tiny bed down by a few per cent before, now hold it up."""
+    runs = {}
+    for drop in (0.0, 0.0005):
+        sim = Simulation(_tiny_drop_case(root, f"silo.floor_drop={drop}"), tmp_path / f"d{drop}", echo=False,
+                         progress=False)
+        assert sim.run().status == "done" and sim.scene.gate_open
+        runs[drop] = sim
+    ref, sim = runs[0.0], runs[0.0005]
+    sc, dt = sim.scene, sim.dt
+    assert ref.scene.drop_phase == 0 and sc.drop_phase == 2
+    assert sc.drop_done - sc.drop_start == pytest.approx(0.0005 / 0.005, abs=1.01 * dt)  # 0.1 s at 5 mm/s
+    assert sc.gate_open_time >= sc.drop_done + 0.05 - dt
+    for w in ("bottom_left", "bottom_right", "lip_left", "lip_right", "gate"):
+        moved = ref.system.wall_position(w) - sim.system.wall_position(w)
+        np.testing.assert_allclose(moved, [0.0, 0.0005, 0.0], atol=1e-15)
+    for w in ("front", "back", "left", "right"):
+        np.testing.assert_array_equal(ref.system.wall_position(w), sim.system.wall_position(w))
+    fb = {}
+    for drop, s in runs.items():
+        share = dict(zip(s.scene.wall_load["labels"], s.scene.wall_load["share"]))
+        assert abs(sum(share.values()) - 1.0) < 0.02
+        fb[drop] = share["front"] + share["back"]
+    assert fb[0.0] < 0.0 < fb[0.0005] and fb[0.0005] - fb[0.0] > 0.03
+    with h5py.File(tmp_path / "d0.0005" / "results.h5", "r") as f:
+        g = f["measurements/silo/floor_drop"]
+        assert float(g["depth"][()]) == 0.0005 and float(g["end_time"][()]) == sc.drop_done
+    with h5py.File(tmp_path / "d0.0" / "results.h5", "r") as f:
+        assert "floor_drop" not in f["measurements/silo"]
+
+
+def test_floor_drop_resumes_mid_drop_bit_identically(root, tmp_path, one_numba_thread):
+    """A run stopped while the floor moves (t = 0.23 s, the drop runs 0.18-0.28 s) and resumed
+    ends in the same state as the run that went through."""
+    extra = ("silo.floor_drop=0.0005", "checkpoint.interval=0.1")
+    ref = Simulation(_tiny_drop_case(root, *extra), tmp_path / "ref", echo=False, progress=False)
+    assert ref.run().status == "done"
+    part = Simulation(_tiny_drop_case(root, *extra, "time.max_steps=12800"), tmp_path / "part", echo=False,
+                      progress=False)
+    assert part.run().status == "stopped" and part.scene.drop_phase == 1
+    res = Simulation(_tiny_drop_case(root, *extra), tmp_path / "part", resume=True, echo=False, progress=False)
+    assert res.run().status == "done"
+    assert res.scene.drop_done == ref.scene.drop_done and res.scene.gate_open_time == ref.scene.gate_open_time
+    np.testing.assert_array_equal(res.system.wall_position("gate"), ref.system.wall_position("gate"))
+    ia, ib = np.argsort(ref.system.ids), np.argsort(res.system.ids)
+    np.testing.assert_array_equal(ref.system.pos[ia], res.system.pos[ib])
+    np.testing.assert_array_equal(ref.scene.wall_load["share"], res.scene.wall_load["share"])
+
+
+@pytest.mark.parametrize("sets, says", [
+    (["silo.floor_drop=0.001"], "needs silo.gate = 'settled'"),
+    (["silo.floor_drop=0.002", "silo.gate='settled'"], "more than half a particle diameter"),
+])
+def test_floor_drop_refuses_what_it_cannot_do(root, sets, says):
+    from cfddem.errors import CaseError
+
+    with pytest.raises(CaseError, match="silo.floor_drop") as e:
+        load_case(root / "cases" / "silo_thesis_small", overrides=sets)
+    assert says in str(e.value)
