@@ -119,9 +119,47 @@ def read_variant(row: dict, variant: dict) -> dict:
         out["z_c"] = _num(st["z_c"])
         for k in ("K_x", "K_z"):  # the measured lateral pressure ratios (runs from before they were stored: NaN)
             out[k] = float(np.nanmean(np.asarray(st[k], float)[band])) if k in st and band.any() else math.nan
+        out["janssen_low_K"] = janssen_measured_k(st, band, out["K_x"], out["K_z"])
     wl = s.get("fill_wall_load")
     if wl is not None:  # runs from before it was stored: NaN
-        out.update(wall_shares([_text(x) for x in np.atleast_1d(wl["labels"])], np.atleast_1d(wl["share"])))
+        labels = [_text(x) for x in np.atleast_1d(wl["labels"])]
+        out.update(wall_shares(labels, np.atleast_1d(wl["share"])))
+        out.update(mobilised_friction(labels, np.asarray(wl["force"], float).reshape(-1, 3),
+                                      np.asarray(wl["load"], float).reshape(-1)))
+    fd = s.get("floor_drop")
+    out["floor_drop"] = 1e3 * _num(fd["depth"]) if fd is not None else 0.0
+    return out
+
+
+def janssen_measured_k(st: dict, band, K_x: float, K_z: float) -> float:
+    """Janssen's vertical stress over ``band`` (mean, Pa) with the measured lateral pressure
+    ratios instead of K from the bulk friction: K_x against the side walls, K_z against the
+    front and back walls (z_c = W T / (2 (K_x mu_side T + K_z mu_front W))), the bed's weight
+    density from the stored hydrostatic line (NaN where either ratio is)."""
+    from .measure.coarse import janssen
+
+    if not (band.any() and math.isfinite(K_x) and math.isfinite(K_z)):
+        return math.nan
+    y = np.asarray(st["y"], float)[band]
+    H, W, T = (float(st[k]) for k in ("H", "W", "T"))
+    gamma = float(np.mean(np.asarray(st["hydrostatic"], float)[band] / (H - y)))
+    return float(np.mean(janssen(y, H, gamma, W, T, 1.0, K_x * float(st["mu_side"]), K_z * float(st["mu_front"]))))
+
+
+def mobilised_friction(labels: list[str], force, load) -> dict:
+    """How much of their friction the walls carry at the end of the fill: for the front and
+    back walls together, and for the side walls, their force along gravity (``load``, the
+    weight they hold up) over their horizontal force (the normal load on a vertical wall), from
+    /measurements/silo/fill_wall_load.  At most the wall friction mu; Janssen's analysis
+    assumes mu (fully mobilised).  NaN for walls that are absent or carry no normal load."""
+    force, load = np.asarray(force, float), np.asarray(load, float)
+    out = {}
+    for key, names in (("mobilised_front_back", ("front", "back")), ("mobilised_sides", ("left", "right"))):
+        idx = [i for i, k in enumerate(labels) if k in names]
+        # the horizontal part of each wall's force (load is its component along gravity)
+        horiz = np.sqrt(np.maximum(np.sum(force[idx] ** 2, axis=1) - load[idx] ** 2, 0.0))
+        n = float(horiz.sum())
+        out[key] = float(load[idx].sum()) / n if n > 0 else math.nan
     return out
 
 
@@ -171,10 +209,14 @@ def write_study(study: str, table: list[dict], out: Path, notes: list[str]) -> l
     cols += [("stress_low", "sigma_v 0.1-0.2 H (Pa)", "{:.4g}"), ("janssen_low", "Janssen (Pa)", "{:.4g}"),
              ("share_front_back", "weight on front/back walls (%)", "{:.3g}"),
              ("share_sides", "weight on side walls (%)", "{:.3g}"),
+             ("mobilised_front_back", "friction carried, front/back walls", "{:.3f}"),
+             ("mobilised_sides", "friction carried, side walls", "{:.3f}"),
              ("status", "status", ""), ("wall_time", "wall time (s)", "{:.0f}")]
     extra = [("x", "swept value", ""), ("fill_height", "fill height (m)", ""), ("clogged", "clogged", ""),
              ("z_c", "Janssen z_c (m)", ""), ("K_x", "K_x measured", ""), ("K_z", "K_z measured", ""),
-             ("share_floor", "weight on the floor, lips, gate and other walls (%)", "")]
+             ("share_floor", "weight on the floor, lips, gate and other walls (%)", ""),
+             ("janssen_low_K", "Janssen with the measured K_x, K_z (Pa)", ""),
+             ("floor_drop", "floor drop (mm)", "")]
     extra += [(f"B_err_{h}", f"B error at {h} mm (mm)", "") for h in hs]
     extra += [(f"B_front_{h}", f"B front layer at {h} mm (mm)", "") for h in hs]
     for t in table:

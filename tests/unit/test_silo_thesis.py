@@ -171,3 +171,36 @@ def test_a_reused_run_reads_done_in_the_study_table(tmp_path):
             for st in ("skipped", "done", "failed")]
     assert [r["status"] for r in rows] == ["done (reused)", "done", "failed"]
     assert rows[0]["wall_time"] == 12.0 and math.isnan(rows[0]["flow_rate"])  # no results.h5 there
+
+
+def test_mobilised_friction_is_the_walls_vertical_over_horizontal_force():
+    from cfddem.silo_thesis import mobilised_friction
+
+    labels = ["front", "back", "left", "right", "gate"]
+    # gravity along -y: a wall holding the bed up is pushed down (F_y < 0, load = -F_y > 0)
+    force = np.array([[0.0, -0.3, 2.0], [0.0, -0.1, -2.0], [1.0, -0.1, 0.0], [-3.0, 0.1, 0.0], [0.0, -5.0, 0.0]])
+    load = -force[:, 1]
+    m = mobilised_friction(labels, force, load)
+    assert m["mobilised_front_back"] == pytest.approx(0.4 / 4.0, rel=1e-12)
+    assert m["mobilised_sides"] == pytest.approx(0.0, abs=1e-15)  # one holds up, one pulls down as much
+    # tilted gravity: the horizontal part is what is left of |F| beside the load
+    m = mobilised_friction(["left"], np.array([[0.6, -0.8, 0.0]]), np.array([0.8]))
+    assert m["mobilised_sides"] == pytest.approx(0.8 / 0.6, rel=1e-12)
+    assert math.isnan(m["mobilised_front_back"])  # no front/back walls (a periodic depth)
+
+
+def test_janssen_with_the_measured_ratios_reduces_to_janssens_curve():
+    from cfddem.silo_thesis import janssen_measured_k
+
+    H, W, T, gamma, mu_s, mu_f = 0.145, 0.08, 0.04, 5400.0, 0.17, 0.2
+    y = np.linspace(0.002, 0.14, 35)
+    K = lateral_pressure_ratio(0.37)
+    st = {"y": y, "H": H, "W": W, "T": T, "mu_side": mu_s, "mu_front": mu_f,
+          "hydrostatic": gamma * (H - y)}
+    band = (y > 0.1 * H) & (y < 0.2 * H)
+    assert band.sum() >= 3
+    want = float(np.mean(janssen(y[band], H, gamma, W, T, K, mu_s, mu_f)))
+    assert janssen_measured_k(st, band, K, K) == pytest.approx(want, rel=1e-12)
+    # a larger K against the front/back walls only: more weight on the walls, less stress
+    assert janssen_measured_k(st, band, K, 2 * K) < want
+    assert math.isnan(janssen_measured_k(st, band, math.nan, K))
