@@ -23,7 +23,9 @@ status and wall time), ``<study>_profiles.png`` (the time-averaged vertical-velo
 across the width at each height, depth-averaged and in the layer at the front wall, one line per
 variant) and ``<study>.png`` (B and the channel width against height, the centreline velocity
 against time, the flow rate against the swept value, the vertical stress at the end of the fill
-with Janssen's curve).
+with Janssen's curve) and, for runs that stored the wall profile, ``<study>_walls.png`` (the
+friction the walls carry against height at the end of the fill, and the front/back walls' normal
+stress).
 """
 
 from __future__ import annotations
@@ -356,7 +358,50 @@ def plot_study(study: str, table: list[dict], out: Path) -> list[Path]:
         a.grid(alpha=0.3)
     fig.suptitle(f"silo study '{study}'", fontsize=11)
     files.append(_save(fig, out / f"{study}.png"))
-    return files
+    walls = plot_walls(study, table, col, out)
+    return files + ([walls] if walls else [])
+
+
+def plot_walls(study: str, table: list[dict], col: dict, out: Path) -> Path | None:
+    """``<study>_walls.png``: the wall stresses against height at the end of the fill
+    (/measurements/silo/fill_wall_load/profile): the friction the front/back and side walls
+    carry (shear over normal stress; the walls' mu as thin vertical lines), and the front/back
+    walls' normal stress beside the coarse-grained -sigma_zz next to them.  None when no run has
+    the profile (runs made before it was stored)."""
+    rows = [t for t in table if t["m"] is not None and "profile" in (t["m"].get("fill_wall_load") or {})]
+    if not rows:
+        return None
+    plt = _plt()
+    fig, ax = plt.subplots(1, 2, figsize=(11, 5.2), sharey=True)
+    for t in rows:
+        pr, c = t["m"]["fill_wall_load"]["profile"], col[t["label"]]
+        y = np.asarray(pr["y"], float) * 1e3
+        for key, ls, what in (("front_back", "-", "front/back"), ("sides", "--", "sides")):
+            tau, sig = (np.asarray(pr[f"{k}_{key}"], float) for k in ("tau", "sigma"))
+            with np.errstate(invalid="ignore", divide="ignore"):
+                ratio = np.where(sig > 0, tau / sig, np.nan)
+            ax[0].plot(ratio, y, ls, color=c, label=f"{t['label']}, {what}")
+        st = t["m"].get("stress")
+        ax[1].plot(np.asarray(pr["sigma_front_back"], float), y, "-", color=c, label=f"{t['label']}, front/back walls")
+        if st is not None and "pressure_z" in st:
+            ax[1].plot(np.asarray(st["pressure_z"], float), np.asarray(st["y"], float) * 1e3, ":", color=c,
+                       label=f"{t['label']}, -sigma_zz (coarse-grained)")
+        if st is not None:
+            for mu, ls in ((st.get("mu_front"), "-"), (st.get("mu_side"), "--")):
+                if mu is not None and math.isfinite(float(mu)):
+                    ax[0].axvline(float(mu), color=c, ls=ls, lw=0.6, alpha=0.6)
+    ax[0].set_xlabel("friction carried: wall shear / wall normal stress")
+    ax[0].set_ylabel("height above the floor (mm)")
+    ax[0].set_title("end of the fill: friction the walls carry (thin lines: their mu)", fontsize=9)
+    ax[1].set_xlabel("normal stress on the front/back walls (Pa)")
+    ax[1].set_title("front/back walls' normal stress, and the bed's -sigma_zz", fontsize=9)
+    ax[1].set_xlim(left=0.0)
+    for a in ax:
+        a.grid(alpha=0.3)
+        a.legend(fontsize=7)
+        a.set_ylim(bottom=0.0)
+    fig.suptitle(f"silo study '{study}': wall stresses against height (2 d bins)", fontsize=10)
+    return _save(fig, out / f"{study}_walls.png")
 
 
 def _study(args) -> tuple[list, list[dict]]:

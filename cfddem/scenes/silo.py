@@ -1092,7 +1092,40 @@ class SiloScene(Scene):
         weight = float(np.sum(sys_.mass)) * gn
         load = F @ down
         share = load / weight if weight > 0 else np.full(len(labels), np.nan)
-        return {"labels": labels, "force": F, "load": load, "share": share, "weight": weight}
+        return {"labels": labels, "force": F, "load": load, "share": share, "weight": weight,
+                "profile": self._wall_profile(down)}
+
+    def _wall_profile(self, down) -> dict:
+        """The wall stresses against height at the end of the fill: the forces of the analytic
+        front and back walls, and of the side walls, on the particles, binned by the particles'
+        height in 2 d bins aligned with the floor y = 0 (down into the slot where particles are): shear tau (the force against gravity, holding the bed
+        up) and normal sigma (the horizontal force) per wall area (Pa), each group's two walls
+        together.  Their ratio is the friction the walls carry at that height."""
+        sys_ = self.sim.system
+        d = self.g.d
+        walls = sys_.force_breakdown()["walls"] if sys_.n else {}
+        y = sys_.pos[:, 1] if sys_.n else np.zeros(0)
+        top = max(float(y.max()) if len(y) else 0.0, 2 * d)
+        k0 = min(0, math.floor(float(y.min()) / (2 * d))) if len(y) else 0  # the slot's particles too
+        edges = 2 * d * np.arange(k0, math.floor(top / (2 * d)) + 2)
+        out = {"y": 0.5 * (edges[1:] + edges[:-1])}
+        dy = np.diff(edges)
+        for key, names, width in (("front_back", ("front", "back"), self.g.W), ("sides", ("left", "right"),
+                                                                                self.g.L)):
+            tau = np.zeros(len(dy))
+            sig = np.zeros(len(dy))
+            have = [w for w in names if w in walls]
+            for w in have:
+                f = walls[w]
+                up = -(f @ down)  # the wall's force on the particle against gravity
+                horiz = np.sqrt(np.maximum(np.sum(f * f, axis=1) - up * up, 0.0))
+                tau += np.histogram(y, edges, weights=up)[0]
+                sig += np.histogram(y, edges, weights=horiz)[0]
+            area = len(have) * width * dy
+            with np.errstate(invalid="ignore", divide="ignore"):
+                out[f"tau_{key}"] = np.where(area > 0, tau / np.where(area > 0, area, 1.0), np.nan)
+                out[f"sigma_{key}"] = np.where(area > 0, sig / np.where(area > 0, area, 1.0), np.nan)
+        return out
 
     def fill_measure(self, pos, mass) -> None:
         """Fill height and bulk density of the current packing (module doc for the box)."""
@@ -1195,6 +1228,15 @@ class SiloScene(Scene):
             silo["fill_wall_load"] = {
                 "labels": np.array(wl_["labels"], dtype="S"), "force": wl_["force"], "load": wl_["load"],
                 "share": wl_["share"], "weight": wl_["weight"],
+                **({"profile": {**wl_["profile"], "@attrs": {
+                    "y": "m, bin centres (2 d bins aligned with the floor y = 0, the slot's particles in the lowest) of "
+                         "the particle centres",
+                    "tau_front_back": "Pa, the front and back walls' force on the particles of the bin against "
+                                      "gravity (holding the bed up) over their area 2 W dy; tau_sides likewise for "
+                                      "the side walls (area 2 depth dy)",
+                    "sigma_front_back": "Pa, their horizontal (normal) force over the same area; tau / sigma is the "
+                                        "friction the wall carries at that height (at most its mu)"}}}
+                   if "profile" in wl_ else {}),
                 "@attrs": {"force": "N, force of the particles on each wall (labels) just before the gate opened",
                            "load": "N, that force along gravity (the part of the bed's weight the wall carries; "
                                    "negative: the wall pulls the bed down)",

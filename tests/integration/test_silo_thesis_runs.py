@@ -53,7 +53,8 @@ def test_study_command_writes_table_csv_and_charts(root, tmp_path):
                         "--out", str(out), "--workers", "1", *TINY], capture_output=True, text=True, env=env,
                        cwd=root, timeout=300)
     assert p.returncode == 0, p.stderr[-2000:]
-    for name in ("front-back.csv", "front-back.md", "front-back.png", "front-back_profiles.png"):
+    for name in ("front-back.csv", "front-back.md", "front-back.png", "front-back_profiles.png",
+                 "front-back_walls.png"):
         assert (out / name).is_file() and (out / name).stat().st_size > 300, name
     rows = list(csv.DictReader(open(out / "front-back.csv")))
     assert [r["label"] for r in rows] == ["front/back mu 0.3", "periodic depth"]
@@ -145,9 +146,26 @@ def test_floor_drop_lowers_the_floor_and_mobilises_the_front_back_friction(root,
         assert abs(sum(share.values()) - 1.0) < 0.02
         fb[drop] = share["front"] + share["back"]
     assert fb[0.0] < 0.0 < fb[0.0005] and fb[0.0005] - fb[0.0] > 0.03
+    # the wall stresses against height add up to the walls' loads, and no bin carries more than mu
+    for s in runs.values():
+        wl, g = s.scene.wall_load, s.scene.g
+        prof, lab = wl["profile"], list(wl["labels"])
+        dy = np.diff(prof["y"])[0]
+        k = (prof["y"] - g.d) / (2 * g.d)  # bins aligned with the floor y = 0
+        assert dy == pytest.approx(2 * g.d, rel=1e-12) and np.allclose(k, np.round(k), atol=1e-9)
+        assert prof["y"][0] < 0.0 < prof["y"][1]  # the slot's particles (above the gate) have a bin
+        for key, names, width, mu in (("front_back", ("front", "back"), g.W, 0.2), ("sides", ("left", "right"), g.L,
+                                                                                   0.17)):
+            load = sum(wl["load"][lab.index(w)] for w in names)
+            assert np.nansum(prof[f"tau_{key}"]) * 2 * width * dy == pytest.approx(load, rel=1e-9, abs=1e-12)
+            sig = prof[f"sigma_{key}"]
+            on = sig > 1e-3 * np.nanmax(sig)
+            assert on.sum() >= 2 and np.all(np.abs(prof[f"tau_{key}"][on]) <= 1.05 * mu * sig[on])
     with h5py.File(tmp_path / "d0.0005" / "results.h5", "r") as f:
         g = f["measurements/silo/floor_drop"]
         assert float(g["depth"][()]) == 0.0005 and float(g["end_time"][()]) == sc.drop_done
+        pr = f["measurements/silo/fill_wall_load/profile"]
+        np.testing.assert_array_equal(pr["tau_front_back"][()], sc.wall_load["profile"]["tau_front_back"])
     with h5py.File(tmp_path / "d0.0" / "results.h5", "r") as f:
         assert "floor_drop" not in f["measurements/silo"]
 
