@@ -1098,9 +1098,10 @@ class SiloScene(Scene):
     def _wall_profile(self, down) -> dict:
         """The wall stresses against height at the end of the fill: the forces of the analytic
         front and back walls, and of the side walls, on the particles, binned by the particles'
-        height in 2 d bins aligned with the floor y = 0 (down into the slot where particles are): shear tau (the force against gravity, holding the bed
-        up) and normal sigma (the horizontal force) per wall area (Pa), each group's two walls
-        together.  Their ratio is the friction the walls carry at that height."""
+        height in 2 d bins aligned with the floor y = 0 (down into the slot where particles
+        are): shear tau (the force against gravity, holding the bed up) and normal sigma (the
+        horizontal force) per wall area (Pa), each group's two walls together.  Their ratio is
+        the friction the walls carry at that height."""
         sys_ = self.sim.system
         d = self.g.d
         walls = sys_.force_breakdown()["walls"] if sys_.n else {}
@@ -1280,6 +1281,8 @@ class SiloScene(Scene):
                 "drop": np.array([self.drop_phase, self.drop_start, self.drop_end, self.drop_done, self.drop_y0]),
                 "cl_v": np.array(self.cl_v, float).reshape(len(self.cl_t), len(self.heights)),
                 **({"stress": self.stress} if self.stress else {}),
+                **({"wall_load": {**self.wall_load, "labels": np.array(self.wall_load["labels"], dtype="S")}}
+                   if self.wall_load else {}),
                 **({"probe": self.probe.get_state()} if self.probe else {}),
                 **({"outlet": self.outlet.get_state()} if self.outlet is not None else {})}
 
@@ -1303,9 +1306,17 @@ class SiloScene(Scene):
             self.win_all.set_state(d["win_all"])
             self.win_front.set_state(d["win_front"])
             self.cl_t = [float(x) for x in np.asarray(d["cl_t"]).ravel()]
-            self.cl_v = [np.asarray(v, float) for v in np.asarray(d["cl_v"], float).reshape(len(self.cl_t), len(self.heights))]
+            cl_v = np.asarray(d["cl_v"], float).reshape(len(self.cl_t), len(self.heights))
+            self.cl_v = [np.asarray(v, float) for v in cl_v]
         if "stress" in d:
             self.stress = {k: v for k, v in d["stress"].items()}
+        if "wall_load" in d:  # (the walls' shares at the gate opening, for the measurements)
+            wl_ = dict(d["wall_load"])
+            wl_["labels"] = [x.decode() if isinstance(x, bytes) else str(x) for x in np.atleast_1d(wl_["labels"])]
+            wl_["weight"] = float(wl_["weight"])
+            if "profile" in wl_:
+                wl_["profile"] = dict(wl_["profile"])
+            self.wall_load = wl_
         if "drop" in d:
             dr = np.asarray(d["drop"], float)
             self.drop_phase = int(dr[0])

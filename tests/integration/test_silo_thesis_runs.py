@@ -186,6 +186,18 @@ def test_floor_drop_resumes_mid_drop_bit_identically(root, tmp_path, one_numba_t
     ia, ib = np.argsort(ref.system.ids), np.argsort(res.system.ids)
     np.testing.assert_array_equal(ref.system.pos[ia], res.system.pos[ib])
     np.testing.assert_array_equal(ref.scene.wall_load["share"], res.scene.wall_load["share"])
+    # stopped after the gate opened (0.34 s): the walls' shares and profile at the opening survive
+    late = Simulation(_tiny_drop_case(root, *extra, "time.max_steps=20000"), tmp_path / "late", echo=False,
+                      progress=False)
+    assert late.run().status == "stopped" and late.scene.gate_open
+    res = Simulation(_tiny_drop_case(root, *extra), tmp_path / "late", resume=True, echo=False, progress=False)
+    assert res.run().status == "done"
+    assert list(res.scene.wall_load["labels"]) == list(ref.scene.wall_load["labels"])
+    np.testing.assert_array_equal(res.scene.wall_load["share"], ref.scene.wall_load["share"])
+    with h5py.File(tmp_path / "late" / "results.h5", "r") as f, h5py.File(tmp_path / "ref" / "results.h5", "r") as g:
+        a, b = f["measurements/silo/fill_wall_load"], g["measurements/silo/fill_wall_load"]
+        np.testing.assert_array_equal(a["share"][()], b["share"][()])
+        np.testing.assert_array_equal(a["profile/tau_front_back"][()], b["profile/tau_front_back"][()])
 
 
 @pytest.mark.parametrize("sets, says", [
