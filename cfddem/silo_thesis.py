@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import CaseError
+from .scenes.silo import WALL_PAIRS
 from .silo_prisms import (PP, PW, _floats, _plt, _save, add_study_arguments, load_study_case, run_study,
                           write_table)
 
@@ -156,7 +157,8 @@ def mobilised_friction(labels: list[str], force, load) -> dict:
     assumes mu (fully mobilised).  NaN for walls that are absent or carry no normal load."""
     force, load = np.asarray(force, float), np.asarray(load, float)
     out = {}
-    for key, names in (("mobilised_front_back", ("front", "back")), ("mobilised_sides", ("left", "right"))):
+    for pair, names in WALL_PAIRS.items():
+        key = f"mobilised_{pair}"
         idx = [i for i, k in enumerate(labels) if k in names]
         # the horizontal part of each wall's force (load is its component along gravity)
         horiz = np.sqrt(np.maximum(np.sum(force[idx] ** 2, axis=1) - load[idx] ** 2, 0.0))
@@ -170,8 +172,8 @@ def wall_shares(labels: list[str], share) -> dict:
     in per cent, grouped: the front and back walls, the side walls (left, right), and the rest
     (bottom plates or hopper walls, lips, gate, internals)."""
     share = np.asarray(share, float)
-    fb = sum(float(v) for k, v in zip(labels, share) if k in ("front", "back"))
-    sd = sum(float(v) for k, v in zip(labels, share) if k in ("left", "right"))
+    fb = sum(float(v) for k, v in zip(labels, share) if k in WALL_PAIRS["front_back"])
+    sd = sum(float(v) for k, v in zip(labels, share) if k in WALL_PAIRS["sides"])
     return {"share_front_back": 100 * fb, "share_sides": 100 * sd, "share_floor": 100 * (float(share.sum()) - fb - sd)}
 
 

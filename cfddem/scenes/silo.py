@@ -100,6 +100,9 @@ WALL_GROUPS = {"front": "front_back", "back": "front_back", "left": "sides", "ri
 WALL_GROUPS.update(dict.fromkeys(INTERNALS_WALLS, INTERNALS_GROUP))  # blender internals: silo_internals.py
 #: the walls that silo.floor_drop lowers (those of them the silo has)
 FLOOR_WALLS = ("bottom_left", "bottom_right", "hopper_left", "hopper_right", "lip_left", "lip_right", "gate")
+#: the vertical walls by pair, as the fill's wall loads group them (their shares, the friction they
+#: carry, their stresses against height)
+WALL_PAIRS = {"front_back": ("front", "back"), "sides": ("left", "right")}
 #: the contact groups of the container (every wall but the gate): one mesh wall each with silo.walls = "mesh"
 CONTAINER_GROUPS = ("front_back", "sides", "bottom")
 
@@ -995,6 +998,12 @@ class SiloScene(Scene):
         "janssen": "gamma z_c (1 - exp(-(H - y) / z_c)), gamma = rho_b g, z_c = W T / (2 K (mu_side T + mu_front W)), "
                    "K = (1 - sin phi) / (1 + sin phi), tan phi = bulk_friction; H = M / (rho_b W T)"}
 
+    def _end_fill_friction(self) -> None:
+        """The case's friction from now on, where the fill had its own (``frictionless_fill``,
+        ``fill_friction``, ``fill_rolling_friction``)."""
+        if self.s["frictionless_fill"] or fill_friction_set(self.s):
+            self.sim.system.set_friction(True)
+
     def _floor_walls(self) -> list[str]:
         have = set(self.sim.system.wall_labels())
         return [w for w in FLOOR_WALLS if w in have]
@@ -1005,8 +1014,7 @@ class SiloScene(Scene):
         mobilises the friction the stress is compared with)."""
         sys_ = self.sim.system
         v, depth = self.s["floor_drop_speed"], self.s["floor_drop"]
-        if self.s["frictionless_fill"] or fill_friction_set(self.s):
-            sys_.set_friction(True)
+        self._end_fill_friction()
         self.drop_y0 = float(sys_.wall_position("gate")[1])
         for w in self._floor_walls():
             sys_.set_wall_velocity(w, (0.0, -v, 0.0))
@@ -1029,7 +1037,7 @@ class SiloScene(Scene):
         self.drop_phase = 2
         self.drop_done = t
         self.sim.log.info("silo: the floor stopped at t = %.4g s, %.4g mm lower; the gate opens at the first "
-                          "settled check from t = %.4g s", t, 1e3 * (self.drop_y0 - float(sys_.wall_position("gate")[1])),
+                          "settled check from t = %.4g s", t, 1e3 * self.s["floor_drop"],
                           max(self.s["gate_time"], t + self.s["floor_drop_wait"]))
 
     def _open_gate(self, t: float, ke: float) -> None:
@@ -1051,8 +1059,8 @@ class SiloScene(Scene):
                           ", ".join(f"{k} {100 * v:.3g} %" for k, v in zip(wl_["labels"], wl_["share"])),
                           wl_["weight"])
         sys_.set_wall_active("gate", False)
-        if (self.s["frictionless_fill"] or fill_friction_set(self.s)) and self.drop_phase == 0:
-            sys_.set_friction(True)
+        if self.drop_phase == 0:  # (with a floor drop the fill's friction ended at the drop)
+            self._end_fill_friction()
         if self.case.particles.rotation == "locked":
             sys_.lock_rotation()
         if self.probe:
@@ -1111,8 +1119,8 @@ class SiloScene(Scene):
         edges = 2 * d * np.arange(k0, math.floor(top / (2 * d)) + 2)
         out = {"y": 0.5 * (edges[1:] + edges[:-1])}
         dy = np.diff(edges)
-        for key, names, width in (("front_back", ("front", "back"), self.g.W), ("sides", ("left", "right"),
-                                                                                self.g.L)):
+        for key, width in (("front_back", self.g.W), ("sides", self.g.L)):
+            names = WALL_PAIRS[key]
             tau = np.zeros(len(dy))
             sig = np.zeros(len(dy))
             have = [w for w in names if w in walls]
@@ -1122,10 +1130,9 @@ class SiloScene(Scene):
                 horiz = np.sqrt(np.maximum(np.sum(f * f, axis=1) - up * up, 0.0))
                 tau += np.histogram(y, edges, weights=up)[0]
                 sig += np.histogram(y, edges, weights=horiz)[0]
-            area = len(have) * width * dy
-            with np.errstate(invalid="ignore", divide="ignore"):
-                out[f"tau_{key}"] = np.where(area > 0, tau / np.where(area > 0, area, 1.0), np.nan)
-                out[f"sigma_{key}"] = np.where(area > 0, sig / np.where(area > 0, area, 1.0), np.nan)
+            area = len(have) * width * dy  # (no such walls: NaN)
+            out[f"tau_{key}"] = tau / area if have else np.full(len(dy), np.nan)
+            out[f"sigma_{key}"] = sig / area if have else np.full(len(dy), np.nan)
         return out
 
     def fill_measure(self, pos, mass) -> None:
