@@ -38,7 +38,6 @@ from pathlib import Path
 import numpy as np
 
 from .errors import CaseError
-from .scenes.silo import WALL_PAIRS
 from .silo_prisms import (PP, PW, _floats, _plt, _save, add_study_arguments, load_study_case, run_study,
                           write_table)
 
@@ -155,6 +154,8 @@ def mobilised_friction(labels: list[str], force, load) -> dict:
     weight they hold up) over their horizontal force (the normal load on a vertical wall), from
     /measurements/silo/fill_wall_load.  At most the wall friction mu; Janssen's analysis
     assumes mu (fully mobilised).  NaN for walls that are absent or carry no normal load."""
+    from .scenes.silo import WALL_PAIRS  # (not at import, as in wall_shares)
+
     force, load = np.asarray(force, float), np.asarray(load, float)
     out = {}
     for pair, names in WALL_PAIRS.items():
@@ -171,6 +172,8 @@ def wall_shares(labels: list[str], share) -> dict:
     """The walls' shares of the weight at the end of the fill (/measurements/silo/fill_wall_load),
     in per cent, grouped: the front and back walls, the side walls (left, right), and the rest
     (bottom plates or hopper walls, lips, gate, internals)."""
+    from .scenes.silo import WALL_PAIRS  # (not at import: the scenes start numba, and the study sets its threads)
+
     share = np.asarray(share, float)
     fb = sum(float(v) for k, v in zip(labels, share) if k in WALL_PAIRS["front_back"])
     sd = sum(float(v) for k, v in zip(labels, share) if k in WALL_PAIRS["sides"])
