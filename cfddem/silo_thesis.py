@@ -4,6 +4,7 @@ docs/silo-thesis.md) on ``cases/silo_thesis_small``:
     python -m cfddem.silo_thesis front-back  [--values 0,0.2,0.3,0.5,0.75,1] [--no-periodic] ...
     python -m cfddem.silo_thesis friction    [--mu 0.15,0.57] [--mu-r 0,0.1,0.2] ...
     python -m cfddem.silo_thesis restitution [--values 1e-4,0.6,1] ...
+    python -m cfddem.silo_thesis floor-drop  [--values 0,0.00025,0.0005,0.001,0.0019] ...
     (each also takes --case CASE --out DIR --set K=V ... --workers N --threads T)
 
 * ``front-back``: the friction of the front and back walls (``silo.front_back.mu``) over the
@@ -12,7 +13,12 @@ docs/silo-thesis.md) on ``cases/silo_thesis_small``:
 * ``friction``: particle-particle sliding friction (``contact.particle_particle.mu``) times
   rolling friction (``contact.particle_particle.mu_r``);
 * ``restitution``: the restitution coefficient of every contact (``contact.particle_particle.e_n``
-  and ``contact.particle_wall.e_n`` together).
+  and ``contact.particle_wall.e_n`` together);
+* ``floor-drop``: the depth of the floor's settlement once the fill has settled
+  (``silo.floor_drop``, m; every variant with ``silo.gate = "settled"``, so that 0 is the same
+  fill and gate without the drop); the front/back friction is the case's (``--set``).  Besides
+  the charts below it draws ``<study>_mobilised.png``: the weight carried by each wall group,
+  the friction the walls carry and the vertical stress against Janssen's, against the depth.
 
 Each study is a sweep (:func:`cfddem.sweep.run_sweep`: Dask, one run folder per variant,
 finished runs reused) into ``--out`` (default ``CASE/<study>``).  From each run's results.h5
@@ -42,9 +48,9 @@ from .silo_prisms import (PP, PW, _floats, _plt, _save, add_study_arguments, loa
                           write_table)
 
 CASE = Path(__file__).resolve().parent.parent / "cases" / "silo_thesis_small"
-STUDIES = ("front-back", "friction", "restitution")
+STUDIES = ("front-back", "friction", "restitution", "floor-drop")
 DEFAULTS = {"front-back": [0.0, 0.2, 0.3, 0.5, 0.75, 1.0], "mu": [0.15, 0.57], "mu_r": [0.0, 0.1, 0.2],
-            "restitution": [1e-4, 0.6, 1.0]}
+            "restitution": [1e-4, 0.6, 1.0], "floor-drop": [0.0, 0.00025, 0.0005, 0.001, 0.0019]}
 
 
 def study_variants(study: str, values=None, periodic: bool = True, mu=None, mu_r=None) -> list[dict]:
@@ -65,11 +71,15 @@ def study_variants(study: str, values=None, periodic: bool = True, mu=None, mu_r
     if study == "restitution":
         return [{"label": f"e {e:g}", "group": "e", "x": float(e), "overrides": {PP + "e_n": float(e), PW + "e_n": float(e)}}
                 for e in (values or DEFAULTS["restitution"])]
+    if study == "floor-drop":
+        return [{"label": f"floor drop {1e3 * v:g} mm", "group": "floor drop", "x": 1e3 * float(v),
+                 "overrides": {"silo.floor_drop": float(v), "silo.gate": "settled"}}
+                for v in (values if values is not None else DEFAULTS["floor-drop"])]
     raise CaseError("study", f"{study!r}: one of {', '.join(STUDIES)}")
 
 
 X_LABEL = {"front-back": "front/back wall friction mu", "friction": "rolling friction mu_r (particle-particle)",
-           "restitution": "restitution coefficient e"}
+           "restitution": "restitution coefficient e", "floor-drop": "floor drop once settled (mm)"}
 
 
 def _num(v) -> float:
@@ -118,6 +128,9 @@ def read_variant(row: dict, variant: dict) -> dict:
         band = (y > 0.1 * H) & (y < 0.2 * H)  # away from the floor's kernel edge
         out["stress_low"] = float(pr[band].mean()) if band.any() else math.nan
         out["janssen_low"] = float(jz[band].mean()) if band.any() else math.nan
+        if "hydrostatic" in st:
+            hy = np.asarray(st["hydrostatic"], float)
+            out["hydrostatic_low"] = float(hy[band].mean()) if band.any() else math.nan
         out["z_c"] = _num(st["z_c"])
         for k in ("K_x", "K_z"):  # the measured lateral pressure ratios (runs from before they were stored: NaN)
             out[k] = float(np.nanmean(np.asarray(st[k], float)[band])) if k in st and band.any() else math.nan
@@ -223,6 +236,7 @@ def write_study(study: str, table: list[dict], out: Path, notes: list[str]) -> l
              ("z_c", "Janssen z_c (m)", ""), ("K_x", "K_x measured", ""), ("K_z", "K_z measured", ""),
              ("share_floor", "weight on the floor, lips, gate and other walls (%)", ""),
              ("janssen_low_K", "Janssen with the measured K_x, K_z (Pa)", ""),
+             ("hydrostatic_low", "hydrostatic rho_b g (H - y) 0.1-0.2 H (Pa)", ""),
              ("floor_drop", "floor drop (mm)", "")]
     extra += [(f"B_err_{h}", f"B error at {h} mm (mm)", "") for h in hs]
     extra += [(f"B_front_{h}", f"B front layer at {h} mm (mm)", "") for h in hs]
@@ -364,7 +378,45 @@ def plot_study(study: str, table: list[dict], out: Path) -> list[Path]:
     fig.suptitle(f"silo study '{study}'", fontsize=11)
     files.append(_save(fig, out / f"{study}.png"))
     walls = plot_walls(study, table, col, out)
-    return files + ([walls] if walls else [])
+    files += [walls] if walls else []
+    if study == "floor-drop":
+        files.append(plot_mobilised(study, table, out))
+    return files
+
+
+def plot_mobilised(study: str, table: list[dict], out: Path) -> Path:
+    """``<study>_mobilised.png`` (the floor-drop study): against the depth of the drop, the weight
+    carried by each wall group, the friction the vertical walls carry, and the vertical stress
+    0.1-0.2 H above the floor with Janssen's and the hydrostatic values."""
+    plt = _plt()
+    ts = sorted((t for t in table if math.isfinite(t["x"])), key=lambda t: t["x"])
+    x = np.array([t["x"] for t in ts])
+    fig, ax = plt.subplots(1, 3, figsize=(15, 4.6))
+    col = lambda k: np.array([t.get(k, math.nan) for t in ts], float)  # noqa: E731
+    for k, lab in (("share_front_back", "front/back walls"), ("share_sides", "side walls"),
+                   ("share_floor", "floor, lips, gate")):
+        ax[0].plot(x, col(k), "o-", label=lab)
+    ax[0].set_ylabel("share of the bed's weight (%)")
+    ax[0].set_title("who carries the weight at the gate opening", fontsize=9)
+    for k, lab in (("mobilised_front_back", "front/back walls"), ("mobilised_sides", "side walls")):
+        ax[1].plot(x, col(k), "o-", label=lab)
+    ax[1].set_ylabel("friction carried: wall force along gravity / normal force")
+    ax[1].set_title("the walls' friction mobilised", fontsize=9)
+    for k, lab, fmt in (("stress_low", "coarse-grained", "o-"), ("hydrostatic_low", "hydrostatic", "k:"),
+                        ("janssen_low", "Janssen, K from the bulk friction", "s--"),
+                        ("janssen_low_K", "Janssen, measured K", "^--")):
+        y = col(k)
+        if np.isfinite(y).any():
+            ax[2].plot(x, y, fmt, label=lab)
+    ax[2].set_ylim(bottom=0.0)
+    ax[2].set_ylabel("vertical stress 0.1-0.2 H above the floor (Pa)")
+    ax[2].set_title("vertical stress at the gate opening", fontsize=9)
+    for a in ax:
+        a.set_xlabel(X_LABEL[study])
+        a.grid(alpha=0.3)
+        a.legend(fontsize=8)
+    fig.suptitle(f"silo study '{study}': the floor's settlement and the walls", fontsize=11)
+    return _save(fig, out / f"{study}_mobilised.png")
 
 
 def plot_walls(study: str, table: list[dict], col: dict, out: Path) -> Path | None:
@@ -442,7 +494,8 @@ def _study(args) -> tuple[list, list[dict]]:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m cfddem.silo_thesis", description=__doc__.split("\n\n")[0])
     ap.add_argument("study", choices=STUDIES)
-    ap.add_argument("--values", help="front-back: wall friction values; restitution: e values (comma-separated)")
+    ap.add_argument("--values", help="front-back: wall friction values; restitution: e values; floor-drop: depths "
+                    "in m (comma-separated)")
     ap.add_argument("--no-periodic", action="store_true", help="front-back: leave out the periodic-depth variant")
     ap.add_argument("--mu", help="friction: particle-particle sliding friction values (default 0.15,0.57)")
     ap.add_argument("--mu-r", help="friction: particle-particle rolling friction values (default 0,0.1,0.2)")

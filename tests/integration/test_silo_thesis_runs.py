@@ -210,3 +210,26 @@ def test_floor_drop_refuses_what_it_cannot_do(root, sets, says):
     with pytest.raises(CaseError, match="silo.floor_drop") as e:
         load_case(root / "cases" / "silo_thesis_small", overrides=sets)
     assert says in str(e.value)
+
+
+def test_floor_drop_study_command_tabulates_the_depths(root, tmp_path):
+    """``python -m cfddem.silo_thesis floor-drop`` on the tiny bed: one run per depth with the
+    settled gate, a table with the depth the scene stored, the front/back walls carrying more of
+    the weight after the drop, and the mobilised-friction chart."""
+    out = tmp_path / "drop"
+    env = dict(os.environ, PYTHONPATH=str(root), MPLBACKEND="Agg")
+    sets = ["time.end_time=0.4" if a == "time.end_time=0.35" else a for a in TINY]
+    p = subprocess.run([sys.executable, "-m", "cfddem.silo_thesis", "floor-drop", "--values", "0,0.0005",
+                        "--out", str(out), "--workers", "1", *sets, "--set", "silo.floor_drop_wait=0.05"], capture_output=True, text=True, env=env,
+                       cwd=root, timeout=300)
+    assert p.returncode == 0, p.stderr[-2000:]
+    for name in ("floor-drop.csv", "floor-drop.md", "floor-drop.png", "floor-drop_mobilised.png"):
+        assert (out / name).is_file() and (out / name).stat().st_size > 300, name
+    rows = list(csv.DictReader(open(out / "floor-drop.csv")))
+    assert [r["label"] for r in rows] == ["floor drop 0 mm", "floor drop 0.5 mm"]
+    assert [float(r["floor_drop"]) for r in rows] == [0.0, 0.5]
+    assert all(r["status"] == "done" for r in rows)
+    fb = [float(r["share_front_back"]) for r in rows]
+    assert fb[0] < 0.0 < fb[1] and fb[1] - fb[0] > 3.0  # per cent of the weight (as the scene test finds)
+    assert float(rows[1]["mobilised_front_back"]) > float(rows[0]["mobilised_front_back"])
+    assert "hydrostatic_low" in rows[0]  # (the tiny bed is too low for the 0.1-0.2 H stress band)

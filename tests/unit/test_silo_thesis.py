@@ -204,3 +204,53 @@ def test_janssen_with_the_measured_ratios_reduces_to_janssens_curve():
     # a larger K against the front/back walls only: more weight on the walls, less stress
     assert janssen_measured_k(st, band, K, 2 * K) < want
     assert math.isnan(janssen_measured_k(st, band, math.nan, K))
+
+
+def test_floor_drop_study_variants_set_the_depth_and_the_settled_gate():
+    from cfddem.silo_thesis import DEFAULTS, X_LABEL, study_variants
+
+    v = study_variants("floor-drop", [0.0, 0.0005, 0.0019])
+    assert [x["overrides"] for x in v] == [{"silo.floor_drop": d, "silo.gate": "settled"} for d in (0.0, 0.0005, 0.0019)]
+    assert [x["x"] for x in v] == pytest.approx([0.0, 0.5, 1.9], rel=1e-12)  # the chart's axis in mm
+    assert [x["label"] for x in v] == ["floor drop 0 mm", "floor drop 0.5 mm", "floor drop 1.9 mm"]
+    assert len(study_variants("floor-drop")) == len(DEFAULTS["floor-drop"]) == 5
+    assert "mm" in X_LABEL["floor-drop"]
+
+
+def test_mobilised_chart_draws_each_wall_group_against_the_depth(tmp_path):
+    """plot_mobilised: one line per wall group, its points the table's shares at the swept depths
+    (in order of the depth, whatever the table's order)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from cfddem.silo_thesis import plot_mobilised
+
+    table = [{"x": 1.0, "share_front_back": 36.0, "share_sides": 14.0, "share_floor": 50.0,
+              "mobilised_front_back": 0.17, "mobilised_sides": 0.14, "stress_low": 344.0, "hydrostatic_low": 650.0,
+              "janssen_low": 439.0, "janssen_low_K": 323.0},
+             {"x": 0.0, "share_front_back": 5.0, "share_sides": 3.0, "share_floor": 92.0,
+              "mobilised_front_back": 0.02, "mobilised_sides": 0.02, "stress_low": 605.0, "hydrostatic_low": 655.0,
+              "janssen_low": 440.0, "janssen_low_K": math.nan}]
+    import matplotlib.pyplot as plt
+
+    made = []
+    orig = plt.Figure.savefig
+
+    def keep(fig, *a, **k):
+        made.append(fig)
+        return orig(fig, *a, **k)
+
+    plt.Figure.savefig = keep
+    try:
+        path = plot_mobilised("floor-drop", table, tmp_path)
+    finally:
+        plt.Figure.savefig = orig
+    assert path.name == "floor-drop_mobilised.png" and path.stat().st_size > 1000
+    ax = made[0].axes
+    lines = {ln.get_label(): ln for ln in ax[0].get_lines()}
+    np.testing.assert_array_equal(lines["front/back walls"].get_xdata(), [0.0, 1.0])
+    np.testing.assert_array_equal(lines["front/back walls"].get_ydata(), [5.0, 36.0])
+    np.testing.assert_array_equal(lines["floor, lips, gate"].get_ydata(), [92.0, 50.0])
+    stress = {ln.get_label(): ln for ln in ax[2].get_lines()}
+    np.testing.assert_array_equal(stress["coarse-grained"].get_ydata(), [605.0, 344.0])
+    assert set(stress) == {"coarse-grained", "hydrostatic", "Janssen, K from the bulk friction", "Janssen, measured K"}
