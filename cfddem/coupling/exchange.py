@@ -91,7 +91,7 @@ import numpy as np
 
 from cfddem._jit import kernel, parallel_kernel, prange
 from cfddem.coupling import drag as _drag
-from cfddem.coupling.mapping import MappingPlan, slip_at, sphere_volumes
+from cfddem.coupling.mapping import MappingPlan, _cw, _face_interp, _i8, sphere_volumes
 from cfddem.errors import CaseError
 from cfddem.gas import GasSolver, Inlet, NoSlip, Periodic, PressureOutlet, StaggeredGrid
 from cfddem.gas.operators import c2f_grad_at, c2f_interp_at, f2c_interp_at, grad_to_face, interp_to_face
@@ -210,17 +210,13 @@ def _keff_kernel(F, eps_a, d, mass, c3, dtg, implicit, keff):
     ``implicit`` is 1, else K (the numpy expressions of the step, evaluated in the same
     order)."""
     for p in prange(keff.shape[0]):
-        keff[p] = _keff_of(c3 * d[p] * eps_a[p] * F[p], mass[p], dtg, implicit)
+        K = c3 * d[p] * eps_a[p] * F[p]
+        if implicit == 1:
+            m = mass[p]
+            keff[p] = -m * np.expm1(-dtg * K / m) / dtg
+        else:
+            keff[p] = K
     return 0
-
-
-@kernel(inline="always")
-def _keff_of(K, m, dtg, implicit):
-    """K_eff of drag coefficient K for mass m: ``-m expm1(-dt_g K/m)/dt_g`` if ``implicit`` is
-    1, else K."""
-    if implicit == 1:
-        return -m * np.expm1(-dtg * K / m) / dtg
-    return K
 
 
 @parallel_kernel
@@ -233,13 +229,31 @@ def _slip_drag_kernel(idx, wf, live, eps, u, v, w, vel, rad, rho, mu, cid, facto
     (bit-identical; tests/unit/test_exchange_fused.py) but one read of the particle and its
     weights instead of three, and no Re or F arrays."""
     for p in prange(idx.shape[0]):
-        e, slip = slip_at(idx, wf, p, live, eps, u, v, w, vel)
+        i0, i1, wx0, wx1 = _cw(idx, wf, p, 0, 0)
+        j0, j1, wy0, wy1 = _cw(idx, wf, p, 1, 0)
+        k0, k1, wz0, wz1 = _cw(idx, wf, p, 2, 0)
+        e = _i8(i0, i1, j0, j1, k0, k1, wx0, wx1, wy0, wy1, wz0, wz1, eps)
+        if e < 1e-12:
+            e = 1e-12
+        if e > 1.0:
+            e = 1.0
+        ua, va, wa = _face_interp(idx, wf, p, live, u, v, w)
+        d0 = ua - vel[p, 0]
+        d1 = va - vel[p, 1]
+        d2 = wa - vel[p, 2]
+        slip = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
         d = 2.0 * rad[p]
-        F = _drag.drag_scalar(cid, e, e * rho * slip * d / mu)
+        re = e * rho * slip * d / mu
+        F = _drag.drag_scalar(cid, e, re)
         if factor != 1.0:
             F *= factor
         eps_a[p] = e
-        keff[p] = _keff_of(c3 * d * e * F, mass[p], dtg, implicit)
+        K = c3 * d * e * F
+        if implicit == 1:
+            m = mass[p]
+            keff[p] = -m * np.expm1(-dtg * K / m) / dtg
+        else:
+            keff[p] = K
     return 0
 
 

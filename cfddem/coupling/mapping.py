@@ -611,26 +611,6 @@ def _porosity_chunks_kernel(parity, pstart, perm, idx, wf, pos, vol, lo, hi, wal
     return 0
 
 
-@kernel(inline="always")
-def slip_at(idx, wf, p, live, eps, u, v, w, vel):
-    """(eps_a, |u_a - v_a|) at particle p from the stored weights: eps_a = clip(I_ccc(eps),
-    1e-12, 1), u_a from the face grids (:func:`_face_interp`); shared by :func:`_slip_kernel`
-    and the coupling's slip-and-drag pass."""
-    i0, i1, wx0, wx1 = _cw(idx, wf, p, 0, 0)
-    j0, j1, wy0, wy1 = _cw(idx, wf, p, 1, 0)
-    k0, k1, wz0, wz1 = _cw(idx, wf, p, 2, 0)
-    e = _i8(i0, i1, j0, j1, k0, k1, wx0, wx1, wy0, wy1, wz0, wz1, eps)
-    if e < 1e-12:
-        e = 1e-12
-    if e > 1.0:
-        e = 1.0
-    ua, va, wa = _face_interp(idx, wf, p, live, u, v, w)
-    d0 = ua - vel[p, 0]
-    d1 = va - vel[p, 1]
-    d2 = wa - vel[p, 2]
-    return e, np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-
-
 @parallel_kernel
 def _slip_kernel(idx, wf, live, eps, u, v, w, vel, diam, rho, mu, eps_a, re):
     """Per particle (each its own slot): eps_a = clip(I_ccc(eps), 1e-12, 1), u_a from the face
@@ -638,7 +618,19 @@ def _slip_kernel(idx, wf, live, eps, u, v, w, vel, diam, rho, mu, eps_a, re):
     numpy: its SIMD pow/expm1 on 30k values took 0.75 ms against 1.9 ms for the compiled
     scalar twin called here, measured on the chute.)"""
     for p in prange(idx.shape[0]):
-        e, slip = slip_at(idx, wf, p, live, eps, u, v, w, vel)
+        i0, i1, wx0, wx1 = _cw(idx, wf, p, 0, 0)
+        j0, j1, wy0, wy1 = _cw(idx, wf, p, 1, 0)
+        k0, k1, wz0, wz1 = _cw(idx, wf, p, 2, 0)
+        e = _i8(i0, i1, j0, j1, k0, k1, wx0, wx1, wy0, wy1, wz0, wz1, eps)
+        if e < 1e-12:
+            e = 1e-12
+        if e > 1.0:
+            e = 1.0
+        ua, va, wa = _face_interp(idx, wf, p, live, u, v, w)
+        d0 = ua - vel[p, 0]
+        d1 = va - vel[p, 1]
+        d2 = wa - vel[p, 2]
+        slip = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
         r = e * rho * slip * diam[p] / mu
         eps_a[p] = e
         re[p] = r
