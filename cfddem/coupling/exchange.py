@@ -91,7 +91,7 @@ import numpy as np
 
 from cfddem._jit import kernel, parallel_kernel, prange
 from cfddem.coupling import drag as _drag
-from cfddem.coupling.mapping import MappingPlan, _cw, _face_interp, _i8, sphere_volumes
+from cfddem.coupling.mapping import MappingPlan, sphere_volumes
 from cfddem.errors import CaseError
 from cfddem.gas import GasSolver, Inlet, NoSlip, Periodic, PressureOutlet, StaggeredGrid
 from cfddem.gas.operators import c2f_grad_at, c2f_interp_at, f2c_interp_at, grad_to_face, interp_to_face
@@ -211,44 +211,6 @@ def _keff_kernel(F, eps_a, d, mass, c3, dtg, implicit, keff):
     order)."""
     for p in prange(keff.shape[0]):
         K = c3 * d[p] * eps_a[p] * F[p]
-        if implicit == 1:
-            m = mass[p]
-            keff[p] = -m * np.expm1(-dtg * K / m) / dtg
-        else:
-            keff[p] = K
-    return 0
-
-
-@parallel_kernel
-def _slip_drag_kernel(idx, wf, live, eps, u, v, w, vel, rad, rho, mu, cid, factor, mass, c3, dtg, implicit,
-                      eps_a, keff):
-    """Step 2 in one pass, each particle its own slot: the slip of
-    :func:`cfddem.coupling.mapping._slip_kernel` (eps_a, Re with d = 2 r), the closure's
-    compiled twin F = drag_scalar(cid, eps_a, Re) times ``factor``, and K_eff of
-    :func:`_keff_kernel`, with the same arithmetic in the same order as those three passes
-    (bit-identical; tests/unit/test_exchange_fused.py) but one read of the particle and its
-    weights instead of three, and no Re or F arrays."""
-    for p in prange(idx.shape[0]):
-        i0, i1, wx0, wx1 = _cw(idx, wf, p, 0, 0)
-        j0, j1, wy0, wy1 = _cw(idx, wf, p, 1, 0)
-        k0, k1, wz0, wz1 = _cw(idx, wf, p, 2, 0)
-        e = _i8(i0, i1, j0, j1, k0, k1, wx0, wx1, wy0, wy1, wz0, wz1, eps)
-        if e < 1e-12:
-            e = 1e-12
-        if e > 1.0:
-            e = 1.0
-        ua, va, wa = _face_interp(idx, wf, p, live, u, v, w)
-        d0 = ua - vel[p, 0]
-        d1 = va - vel[p, 1]
-        d2 = wa - vel[p, 2]
-        slip = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-        d = 2.0 * rad[p]
-        re = e * rho * slip * d / mu
-        F = _drag.drag_scalar(cid, e, re)
-        if factor != 1.0:
-            F *= factor
-        eps_a[p] = e
-        K = c3 * d * e * F
         if implicit == 1:
             m = mass[p]
             keff[p] = -m * np.expm1(-dtg * K / m) / dtg
@@ -555,23 +517,20 @@ class CoupledGas:
         dtg = self.dt_gas
         vc = grid.cell_volume
         if n:
-            Keff = self._work("_Keff", (n,))
-            implicit = 1 if self.drag_treatment == "implicit" else 0
+            d = 2.0 * rad
+            # the closure in its own parallel pass over the particles (its compiled twin;
+            # docs/coupling.md, "Fused kernels")
+            eps_a, re = plan.interpolate_slip(eps, gas.u.interior, gas.v.interior, gas.w.interior, vel, d,
+                                              self.rho, self.mu)
             if self._cid is not None:
-                # slip, the closure's compiled twin and K_eff in one parallel pass over the
-                # particles (docs/coupling.md, "Fused kernels")
-                eps_a = self._work("_eps_a", (n,))
-                _slip_drag_kernel(*plan.slip_operands(eps, gas.u.interior, gas.v.interior, gas.w.interior, vel),
-                                  rad, self.rho, self.mu, np.int64(self._cid), float(self.drag_factor), mass,
-                                  3.0 * np.pi * self.mu, dtg, implicit, eps_a, Keff)
-            else:  # a user's own closure F(eps, re), called by numpy between the slip and K_eff
-                d = 2.0 * rad
-                eps_a, re = plan.interpolate_slip(eps, gas.u.interior, gas.v.interior, gas.w.interior, vel, d,
-                                                  self.rho, self.mu)
+                F = _drag.drag_values(self._cid, eps_a, re, self._work("_F", (n,)))
+            else:
                 F = np.ascontiguousarray(self._F(eps_a, re), dtype=np.float64)
-                if self.drag_factor != 1.0:
-                    F *= self.drag_factor
-                _keff_kernel(F, eps_a, d, mass, 3.0 * np.pi * self.mu, dtg, implicit, Keff)
+            if self.drag_factor != 1.0:
+                F *= self.drag_factor
+            Keff = self._work("_Keff", (n,))
+            _keff_kernel(F, eps_a, d, mass, 3.0 * np.pi * self.mu, dtg, 1 if self.drag_treatment == "implicit" else 0,
+                         Keff)
             if gone is not None:
                 Keff[gone] = 0.0
         if n and not self.frozen:

@@ -1091,24 +1091,16 @@ class MappingPlan:
         return self._slip(eps, u, v, w, vel, diameter, rho, mu)
 
     def _slip(self, eps, u, v, w, vel, diameter, rho, mu):
-        d = self._per_particle(diameter, "diameter")
-        re = self._buf("re", (self.n,))
-        ops = self.slip_operands(eps, u, v, w, vel)
-        eps_a = self._buf("eps_a", (self.n,))
-        if self.n:
-            _slip_kernel(*ops, d, float(rho), float(mu), eps_a, re)
-        return eps_a, re
-
-    def slip_operands(self, eps, u, v, w, vel):
-        """What a per-particle kernel of the slip needs, checked: ``(idx, wf, live, eps, u, v,
-        w, vel)``, the compact weights and live face grids of :func:`_slip_kernel` and the
-        fields as contiguous arrays (a kernel that goes on from the slip, such as the
-        coupling's slip-and-drag pass, starts from the same numbers)."""
         eps, fu, fv, fw = self._fields(eps, u, v, w)
         vel = self._vel(vel)
-        _, _, live = self._params()
-        idx, wf = self._compact()
-        return idx, wf, live, eps, fu, fv, fw, vel
+        d = self._per_particle(diameter, "diameter")
+        eps_a = self._buf("eps_a", (self.n,))
+        re = self._buf("re", (self.n,))
+        if self.n:
+            _, _, live = self._params()
+            idx, wf = self._compact()
+            _slip_kernel(idx, wf, live, eps, fu, fv, fw, vel, d, float(rho), float(mu), eps_a, re)
+        return eps_a, re
 
     def deposit_drag(self, keff, vel):
         """Face deposits of a drag coefficient and of its momentum, one pass over the particles
