@@ -220,8 +220,8 @@ def test_floor_drop_study_command_tabulates_the_depths(root, tmp_path):
     env = dict(os.environ, PYTHONPATH=str(root), MPLBACKEND="Agg")
     sets = ["time.end_time=0.4" if a == "time.end_time=0.35" else a for a in TINY]
     p = subprocess.run([sys.executable, "-m", "cfddem.silo_thesis", "floor-drop", "--values", "0,0.0005",
-                        "--out", str(out), "--workers", "1", *sets, "--set", "silo.floor_drop_wait=0.05"], capture_output=True, text=True, env=env,
-                       cwd=root, timeout=300)
+                        "--out", str(out), "--workers", "1", *sets, "--set", "silo.floor_drop_wait=0.05"],
+                       capture_output=True, text=True, env=env, cwd=root, timeout=300)
     assert p.returncode == 0, p.stderr[-2000:]
     for name in ("floor-drop.csv", "floor-drop.md", "floor-drop.png", "floor-drop_mobilised.png"):
         assert (out / name).is_file() and (out / name).stat().st_size > 300, name

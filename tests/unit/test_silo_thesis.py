@@ -217,7 +217,7 @@ def test_floor_drop_study_variants_set_the_depth_and_the_settled_gate():
     assert "mm" in X_LABEL["floor-drop"]
 
 
-def test_mobilised_chart_draws_each_wall_group_against_the_depth(tmp_path):
+def test_mobilised_chart_draws_each_wall_group_against_the_depth(tmp_path, monkeypatch):
     """plot_mobilised: one line per wall group, its points the table's shares at the swept depths
     (in order of the depth, whatever the table's order)."""
     import matplotlib
@@ -240,11 +240,8 @@ def test_mobilised_chart_draws_each_wall_group_against_the_depth(tmp_path):
         made.append(fig)
         return orig(fig, *a, **k)
 
-    plt.Figure.savefig = keep
-    try:
-        path = plot_mobilised("floor-drop", table, tmp_path)
-    finally:
-        plt.Figure.savefig = orig
+    monkeypatch.setattr(plt.Figure, "savefig", keep)
+    path = plot_mobilised("floor-drop", table, tmp_path)
     assert path.name == "floor-drop_mobilised.png" and path.stat().st_size > 1000
     ax = made[0].axes
     lines = {ln.get_label(): ln for ln in ax[0].get_lines()}
