@@ -5,7 +5,7 @@ docs/silo-thesis.md) on ``cases/silo_thesis_small``:
     python -m cfddem.silo_thesis friction    [--mu 0.15,0.57] [--mu-r 0,0.1,0.2] ...
     python -m cfddem.silo_thesis restitution [--values 1e-4,0.6,1] ...
     python -m cfddem.silo_thesis floor-drop  [--values 0,0.00025,0.0005,0.001,0.0019] ...
-    (each also takes --case CASE --out DIR --set K=V ... --workers N --threads T)
+    (each also takes --replicas N --case CASE --out DIR --set K=V ... --workers N --threads T)
 
 * ``front-back``: the friction of the front and back walls (``silo.front_back.mu``) over the
   values, and the variant with a periodic depth instead of those walls
@@ -21,7 +21,10 @@ docs/silo-thesis.md) on ``cases/silo_thesis_small``:
   the friction the walls carry and the vertical stress against Janssen's, against the depth.
 
 Each study is a sweep (:func:`cfddem.sweep.run_sweep`: Dask, one run folder per variant,
-finished runs reused) into ``--out`` (default ``CASE/<study>``).  From each run's results.h5
+finished runs reused) into ``--out`` (default ``CASE/<study>``).  ``--replicas N`` fills each
+variant N times (``particles.seed`` + 0, ..., N - 1: other jitters of the fill; the first is the
+unreplicated run): the tables then give mean ± standard deviation and ``<study>_runs.csv`` every
+run, and the charts draw the means with error bars (combine_replicas, mean_measurements).  From each run's results.h5
 (the silo scene's ``/measurements``: docs/silo.md) it writes ``<study>.csv`` and ``<study>.md``
 (per variant: mass flow rate, bulk density, flow pattern, the kinematic model's B at each profile
 height, the flow-channel width there, the vertical stress on the floor region against Janssen's,
@@ -39,12 +42,13 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from .errors import CaseError
-from .silo_prisms import (PP, PW, _floats, _plt, _save, add_study_arguments, load_study_case, run_study,
+from .silo_prisms import (PP, PW, _floats, _fmt, _plt, _save, add_study_arguments, load_study_case, run_study,
                           write_table)
 
 CASE = Path(__file__).resolve().parent.parent / "cases" / "silo_thesis_small"
@@ -76,6 +80,97 @@ def study_variants(study: str, values=None, periodic: bool = True, mu=None, mu_r
                  "overrides": {"silo.floor_drop": float(v), "silo.gate": "settled"}}
                 for v in (values if values is not None else DEFAULTS["floor-drop"])]
     raise CaseError("study", f"{study!r}: one of {', '.join(STUDIES)}")
+
+
+def replicate(variants: list[dict], replicas: int, seed0: int) -> list[dict]:
+    """Each variant ``replicas`` times, one after the other: replica k with ``particles.seed``
+    = seed0 + k (another jitter of the fill lattice, or of each poured layer); replica 0 with
+    the case's own seed and no override, so that it is the unreplicated study's run (reused)."""
+    if replicas < 1:
+        raise CaseError("--replicas", f"needs at least 1, got {replicas}")
+    out = []
+    for v in variants:
+        for k in range(replicas):
+            ov = dict(v["overrides"])
+            if k:
+                ov["particles.seed"] = seed0 + k
+            out.append(dict(v, overrides=ov, replica=k, seed=seed0 + k))
+    return out
+
+
+_NOT_AVERAGED = ("label", "group", "x", "status", "wall_time", "m", "flow_pattern", "replica", "seed")
+
+
+def _mean_sd(vals: list) -> tuple[float, float, int]:
+    """Mean, standard deviation (ddof 1; NaN below two values) and count of the finite values."""
+    a = np.array([v for v in vals if isinstance(v, (int, float)) and math.isfinite(v)], float)
+    if a.size == 0:
+        return math.nan, math.nan, 0
+    return float(a.mean()), float(a.std(ddof=1)) if a.size > 1 else math.nan, int(a.size)
+
+
+def combine_replicas(runs: list[dict], replicas: int) -> list[dict]:
+    """One table row per variant from its ``replicas`` consecutive run rows: every number the
+    mean over the replicas that have it, with ``<key>_sd`` its standard deviation (ddof 1);
+    ``n_measured`` the replicas with a flow rate; the flow patterns with their counts when they
+    differ; the wall times summed; ``m`` the replicas' measurements averaged (mean_measurements).
+    With one replica the rows come back as they are."""
+    if replicas == 1:
+        return runs
+    out = []
+    for i in range(0, len(runs), replicas):
+        grp = runs[i:i + replicas]
+        t = {k: grp[0][k] for k in ("label", "group", "x")}
+        done = sum(g["status"] in ("done", "done (reused)") for g in grp)
+        t["status"] = f"{done} of {len(grp)} done"
+        t["wall_time"] = float(sum(g["wall_time"] for g in grp if math.isfinite(g["wall_time"])))
+        keys = [k for g in grp for k in g if k not in _NOT_AVERAGED]
+        for k in dict.fromkeys(keys):
+            t[k], t[f"{k}_sd"], n = _mean_sd([g.get(k, math.nan) for g in grp])
+            if k == "flow_rate":
+                t["n_measured"] = n
+        pats = [g["flow_pattern"] for g in grp if g["flow_pattern"]]
+        t["flow_pattern"] = pats[0] if len(set(pats)) == 1 else ", ".join(
+            f"{p} {pats.count(p)}" for p in dict.fromkeys(pats))
+        t["m"] = mean_measurements([g["m"] for g in grp if g["m"] is not None])
+        t["replicas"] = len(grp)
+        out.append(t)
+    return out
+
+
+def mean_measurements(ms: list[dict]):
+    """The silo measurements of several replicas averaged, for the charts: arrays and numbers of
+    the same shape in every replica are averaged (NaN-aware), anything else is the first
+    replica's; the kinematic B's error bars become the standard deviation of B over the
+    replicas.  None without measurements, the dict itself for one."""
+    if not ms:
+        return None
+    if len(ms) == 1:
+        return ms[0]
+
+    def avg(vals):
+        if all(isinstance(v, dict) for v in vals):
+            return {k: avg([v[k] for v in vals]) if all(k in v for v in vals) else vals[0][k] for k in vals[0]}
+        try:
+            a = [np.asarray(v, float) for v in vals]
+        except (TypeError, ValueError):
+            return vals[0]
+        if any(x.shape != a[0].shape for x in a):
+            return vals[0]
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN entries stay NaN
+            return np.nanmean(np.stack(a), axis=0)
+
+    m = avg(ms)
+    for layer in ("depth", "front"):
+        try:
+            B = np.stack([np.asarray(x["profiles"][layer]["B"], float) for x in ms])
+        except (KeyError, TypeError, ValueError):
+            continue
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            m["profiles"][layer]["B_err"] = np.nanstd(B, axis=0, ddof=1)
+    return m
 
 
 X_LABEL = {"front-back": "front/back wall friction mu", "friction": "rolling friction mu_r (particle-particle)",
@@ -219,7 +314,12 @@ def machine_notes() -> list[str]:
             f"{la[2]:.2f} (1, 5, 15 min) when the table was written"]
 
 
-def write_study(study: str, table: list[dict], out: Path, notes: list[str]) -> list[Path]:
+def write_study(study: str, table: list[dict], out: Path, notes: list[str], runs: list[dict] | None = None
+                ) -> list[Path]:
+    """The study's tables and charts (module doc).  With ``runs`` (the rows of every replica;
+    ``table`` then holds their means, combine_replicas) the Markdown table reads mean ± s.d.,
+    the CSV has each column's s.d. beside it, ``<study>_runs.csv`` lists every run, and the
+    charts draw the means with error bars of one s.d."""
     hs = _heights(table)
     cols = [("label", "variant", ""), ("flow_rate", "flow rate (kg/s)", "{:.4g}"),
             ("bulk_density", "bulk density (kg/m3)", "{:.4g}"), ("flow_pattern", "flow pattern", ""),
@@ -244,14 +344,39 @@ def write_study(study: str, table: list[dict], out: Path, notes: list[str]) -> l
         for c, _, _ in cols + extra:
             t.setdefault(c, math.nan)
     title = f"Silo study '{study}' (thesis chapter 5)"
+    files = [out / f"{study}.csv", out / f"{study}.md"]
+    if runs is not None:  # replicas: the CSV also has each number's standard deviation
+        sd = [(f"{c}_sd", f"{h} s.d.", "") for c, h, _ in cols[:-2] + extra
+              if c not in ("label", "flow_pattern", "x") and any(f"{c}_sd" in t for t in table)]
+        for t in table:
+            for c, _, _ in sd:
+                t.setdefault(c, math.nan)
+        write_table(out / study, cols[:-2] + extra + sd + [("replicas", "replicas", ""), ("n_measured", "n", "")]
+                    + cols[-2:], table, title, notes)
+        rcols = [("label", "variant", ""), ("seed", "particles.seed", "")] + cols[1:-2] + extra + cols[-2:]
+        for t in runs:
+            for c, _, _ in rcols:
+                t.setdefault(c, math.nan)
+        write_table(out / f"{study}_runs", rcols, runs, title + ", every run", notes)
+        (out / f"{study}_runs.md").unlink()
+        files.insert(1, out / f"{study}_runs.csv")
+        shown = [{c: _pm(t, c, f) if f else t[c] for c, _, f in cols} for t in table]
+        mcols = [(c, h, "") for c, h, _ in cols]
+    else:
+        write_table(out / study, cols[:-2] + extra + cols[-2:], table, title, notes)
+        shown, mcols = table, cols
     # the CSV with every column; the Markdown table with the main ones
-    write_table(out / study, cols[:-2] + extra + cols[-2:], table, title, notes)
-    short = write_table(out / f"{study}_short", cols, table, title, notes)
+    short = write_table(out / f"{study}_short", mcols, shown, title, notes)
     short[1].replace(out / f"{study}.md")
     short[0].unlink()
-    files = [out / f"{study}.csv", out / f"{study}.md"]
     files += plot_study(study, table, out)
     return files
+
+
+def _pm(t: dict, key: str, spec: str) -> str:
+    """``mean ± s.d.`` of a replicated number (the mean alone where the s.d. is not finite)."""
+    sd = t.get(f"{key}_sd", math.nan)
+    return f"{_fmt(t[key], spec)} ± {_fmt(sd, spec)}" if math.isfinite(sd) else _fmt(t[key], spec)
 
 
 def swept_panel(a, study: str, groups: dict, col: dict, key: str, scale: float, unit: str, ylabel: str,
@@ -261,9 +386,16 @@ def swept_panel(a, study: str, groups: dict, col: dict, key: str, scale: float, 
     for g, ts in groups.items():
         xs = np.array([t["x"] for t in ts])
         ys = np.array([t[key] for t in ts]) * scale
+        es = np.array([t.get(f"{key}_sd", math.nan) for t in ts]) * scale  # replicas: 1 s.d.
         if np.all(np.isnan(xs)):
-            for y in ys:
-                a.axhline(y, color=col[ts[0]["label"]], ls="--", label=f"{g}: {y:.4g} {unit}")
+            for y, e in zip(ys, es):
+                c = col[ts[0]["label"]]
+                a.axhline(y, color=c, ls="--", label=f"{g}: {y:.4g}" + (f" ± {e:.2g}" if np.isfinite(e) else "")
+                          + f" {unit}")
+                if np.isfinite(e):
+                    a.axhspan(y - e, y + e, color=c, alpha=0.12)
+        elif np.isfinite(es).any():
+            a.errorbar(xs, ys, yerr=np.nan_to_num(es), fmt="o-", capsize=3, label=f"{g} (1 s.d. over replicas)")
         else:
             a.plot(xs, ys, "o-", label=g)
     if study == "restitution":
@@ -272,6 +404,8 @@ def swept_panel(a, study: str, groups: dict, col: dict, key: str, scale: float, 
     # that two nearly equal values do not look like a trend
     a.ticklabel_format(axis="y", useOffset=False, style="plain")
     ys = np.array([t[key] for ts in groups.values() for t in ts], float) * scale
+    es = np.nan_to_num(np.array([t.get(f"{key}_sd", math.nan) for ts in groups.values() for t in ts], float)) * scale
+    ys = np.concatenate([ys - es, ys + es])
     ys = ys[np.isfinite(ys)]
     if ys.size:
         mid, half = 0.5 * (ys.max() + ys.min()), 0.5 * (ys.max() - ys.min())
@@ -312,8 +446,9 @@ def plot_study(study: str, table: list[dict], out: Path) -> list[Path]:
         axes[r, 0].set_ylabel("downward velocity -v_y (mm/s)")
     axes[0, 0].legend(fontsize=7)
     w = np.asarray(p0["window"], float)
-    fig.suptitle(f"{study}: vertical-velocity profiles averaged {w[0]:g}-{w[1]:g} s after the gate opening",
-                 fontsize=10)
+    nrep = max(int(t.get("replicas", 1)) for t in have)
+    fig.suptitle(f"{study}: vertical-velocity profiles averaged {w[0]:g}-{w[1]:g} s after the gate opening"
+                 + (f", mean of {nrep} fills a variant" if nrep > 1 else ""), fontsize=10)
     files = [_save(fig, out / f"{study}_profiles.png")]
 
     fig, ax = plt.subplots(2, 3, figsize=(15, 8.5))
@@ -325,7 +460,8 @@ def plot_study(study: str, table: list[dict], out: Path) -> list[Path]:
                    label=t["label"])
     a.set_xlabel("height above the outlet z (mm)")
     a.set_ylabel("kinematic B (mm), depth-averaged")
-    a.set_title("B of v = v0 exp(-x^2 / (4 B z)) (no point: fit not meaningful)", fontsize=9)
+    a.set_title("B of v = v0 exp(-x^2 / (4 B z)) (no point: fit not meaningful)"
+                + ("\nmean over the fills, error bars 1 s.d. over them" if nrep > 1 else ""), fontsize=9)
     a.legend(fontsize=7)
     a = ax[0, 1]
     for t in have:
@@ -393,21 +529,28 @@ def plot_mobilised(study: str, table: list[dict], out: Path) -> Path:
     x = np.array([t["x"] for t in ts])
     fig, ax = plt.subplots(1, 3, figsize=(15, 4.6))
     col = lambda k: np.array([t.get(k, math.nan) for t in ts], float)  # noqa: E731
+
+    def line(a, k, fmt, lab):  # with replicas: error bars of 1 s.d.
+        e = col(f"{k}_sd")
+        if np.isfinite(e).any():
+            a.errorbar(x, col(k), yerr=np.nan_to_num(e), fmt=fmt, capsize=3, label=lab)
+        else:
+            a.plot(x, col(k), fmt, label=lab)
+
     for k, lab in (("share_front_back", "front/back walls"), ("share_sides", "side walls"),
                    ("share_floor", "floor, lips, gate")):
-        ax[0].plot(x, col(k), "o-", label=lab)
+        line(ax[0], k, "o-", lab)
     ax[0].set_ylabel("share of the bed's weight (%)")
     ax[0].set_title("who carries the weight at the gate opening", fontsize=9)
     for k, lab in (("mobilised_front_back", "front/back walls"), ("mobilised_sides", "side walls")):
-        ax[1].plot(x, col(k), "o-", label=lab)
+        line(ax[1], k, "o-", lab)
     ax[1].set_ylabel("friction carried: wall force along gravity / normal force")
     ax[1].set_title("the walls' friction mobilised", fontsize=9)
     for k, lab, fmt in (("stress_low", "coarse-grained", "o-"), ("hydrostatic_low", "hydrostatic", "k:"),
                         ("janssen_low", "Janssen, K from the bulk friction", "s--"),
                         ("janssen_low_K", "Janssen, measured K", "^--")):
-        y = col(k)
-        if np.isfinite(y).any():
-            ax[2].plot(x, y, fmt, label=lab)
+        if np.isfinite(col(k)).any():
+            line(ax[2], k, fmt, lab)
     ax[2].set_ylim(bottom=0.0)
     ax[2].set_ylabel("vertical stress 0.1-0.2 H above the floor (Pa)")
     ax[2].set_title("vertical stress at the gate opening", fontsize=9)
@@ -478,16 +621,24 @@ def _study(args) -> tuple[list, list[dict]]:
     variants = study_variants(args.study, values, not args.no_periodic,
                               _floats(args.mu, "--mu") if args.mu else None,
                               _floats(args.mu_r, "--mu-r") if args.mu_r else None)
+    n = args.replicas
+    variants = replicate(variants, n, int(base.particles.seed))
     out = Path(args.out).resolve() if args.out else Path(args.case).resolve() / args.study
     rows = run_sweep(args.case, [v["overrides"] for v in variants], out, common=args.overrides,
                      workers=args.workers, threads=args.threads, chart="mass_flow_rate")
-    table = study_table(rows, variants)
+    runs = study_table(rows, variants)
+    for t, v in zip(runs, variants):
+        t["seed"] = v["seed"]
+    table = combine_replicas(runs, n)
     notes = [f"case {Path(args.case).resolve().name}" + (f" with {' '.join(args.overrides)}" if args.overrides
                                                          else ""),
              "B in mm (NaN/-: fit not meaningful, see the run's /measurements/silo/profiles B_notes); channel: "
              "flow-channel width at each height; sigma_v: coarse-grained vertical stress at the end of the fill, "
              "mean over 0.1-0.2 of the fill height, and Janssen's there"] + machine_notes()
-    files = write_study(args.study, table, out, notes)
+    if n > 1:
+        notes.insert(1, f"{n} fills a variant (particles.seed {base.particles.seed}-{base.particles.seed + n - 1}): "
+                     "mean ± standard deviation over them; every run in the _runs.csv table")
+    files = write_study(args.study, table, out, notes, runs if n > 1 else None)
     return files, rows
 
 
@@ -499,6 +650,8 @@ def main(argv=None) -> int:
     ap.add_argument("--no-periodic", action="store_true", help="front-back: leave out the periodic-depth variant")
     ap.add_argument("--mu", help="friction: particle-particle sliding friction values (default 0.15,0.57)")
     ap.add_argument("--mu-r", help="friction: particle-particle rolling friction values (default 0,0.1,0.2)")
+    ap.add_argument("--replicas", type=int, default=1, help="fills per variant (particles.seed + 0, 1, ...; "
+                    "the tables give mean ± s.d., the charts error bars)")
     add_study_arguments(ap, CASE)
     return run_study("silo_thesis", _study, ap.parse_args(argv))
 

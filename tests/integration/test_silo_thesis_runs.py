@@ -233,3 +233,28 @@ def test_floor_drop_study_command_tabulates_the_depths(root, tmp_path):
     assert fb[0] < 0.0 < fb[1] and fb[1] - fb[0] > 3.0  # per cent of the weight (as the scene test finds)
     assert float(rows[1]["mobilised_front_back"]) > float(rows[0]["mobilised_front_back"])
     assert "hydrostatic_low" in rows[0]  # (the tiny bed is too low for the 0.1-0.2 H stress band)
+
+
+def test_study_with_replicas_tabulates_each_fill_and_their_mean(root, tmp_path):
+    """``--replicas 2`` on the tiny bed: two fills of the variant (seeds 6 and 7, the case's and
+    the next: other jitters of the lattice, so other numbers), every run in _runs.csv, the main
+    CSV their mean and standard deviation, the Markdown table mean ± s.d."""
+    out = tmp_path / "rep"
+    env = dict(os.environ, PYTHONPATH=str(root), MPLBACKEND="Agg")
+    p = subprocess.run([sys.executable, "-m", "cfddem.silo_thesis", "front-back", "--values", "0.3", "--no-periodic",
+                        "--replicas", "2", "--out", str(out), "--workers", "1", *TINY],
+                       capture_output=True, text=True, env=env, cwd=root, timeout=300)
+    assert p.returncode == 0, p.stderr[-2000:]
+    each = list(csv.DictReader(open(out / "front-back_runs.csv")))
+    assert [r["seed"] for r in each] == ["6", "7"] and all(r["status"] == "done" for r in each)
+    f = np.array([float(r["flow_rate"]) for r in each])
+    assert np.all(f > 0) and f[0] != f[1]  # independent fills
+    row, = csv.DictReader(open(out / "front-back.csv"))
+    assert float(row["flow_rate"]) == pytest.approx(f.mean(), rel=1e-12)
+    assert float(row["flow_rate_sd"]) == pytest.approx(f.std(ddof=1), rel=1e-9)
+    assert row["status"] == "2 of 2 done" and row["replicas"] == "2"
+    md = (out / "front-back.md").read_text()
+    assert " ± " in md and "2 fills a variant (particles.seed 6-7)" in md
+    assert (out / "front-back.png").stat().st_size > 1000
+    assert sorted(d.name for d in out.iterdir() if d.is_dir()) == ["silo.front_back.mu=0.3",
+                                                                   "silo.front_back.mu=0.3__particles.seed=7"]

@@ -251,3 +251,109 @@ def test_mobilised_chart_draws_each_wall_group_against_the_depth(tmp_path, monke
     stress = {ln.get_label(): ln for ln in ax[2].get_lines()}
     np.testing.assert_array_equal(stress["coarse-grained"].get_ydata(), [605.0, 344.0])
     assert set(stress) == {"coarse-grained", "hydrostatic", "Janssen, K from the bulk friction", "Janssen, measured K"}
+
+
+def test_replicas_are_the_variants_again_with_the_next_seeds():
+    """--replicas: each variant N times in a row, replica k with particles.seed = seed0 + k; the
+    first replica has no seed override, so it is the unreplicated study's run (reused)."""
+    from cfddem.silo_thesis import replicate, study_variants
+
+    v = replicate(study_variants("front-back", [0.2, 1.0], periodic=False), 3, 6)
+    assert [x["label"] for x in v] == ["front/back mu 0.2"] * 3 + ["front/back mu 1"] * 3
+    assert [x["seed"] for x in v] == [6, 7, 8, 6, 7, 8]
+    assert v[0]["overrides"] == {"silo.front_back.mu": 0.2}
+    assert v[2]["overrides"] == {"silo.front_back.mu": 0.2, "particles.seed": 8}
+    assert replicate(v[:1], 1, 6) == [dict(v[0], replica=0, seed=6)]
+    with pytest.raises(CaseError, match="--replicas"):
+        replicate(v, 0, 6)
+
+
+def _run_row(label, x, flow, pattern, status="done", B=math.nan, m=None):
+    return {"label": label, "group": "walls", "x": x, "status": status, "wall_time": 100.0, "m": m,
+            "flow_rate": flow, "bulk_density": 550.0, "flow_pattern": pattern, "B_10": B, "clogged": 0}
+
+
+def test_replicas_combine_into_mean_and_standard_deviation():
+    from cfddem.silo_thesis import combine_replicas
+
+    runs = [_run_row("a", 0.2, 0.10, "semi-mass", B=3.0), _run_row("a", 0.2, 0.11, "semi-mass", B=math.nan),
+            _run_row("a", 0.2, 0.12, "semi-mass", B=5.0),
+            _run_row("b", 1.0, 0.09, "semi-mass"), _run_row("b", 1.0, math.nan, "", status="failed"),
+            _run_row("b", 1.0, 0.10, "mass")]
+    a, b = combine_replicas(runs, 3)
+    assert (a["label"], a["x"], a["replicas"]) == ("a", 0.2, 3)
+    assert a["flow_rate"] == pytest.approx(0.11, rel=1e-12)
+    assert a["flow_rate_sd"] == pytest.approx(0.01, rel=1e-9)  # ddof 1
+    assert a["B_10"] == pytest.approx(4.0) and a["B_10_sd"] == pytest.approx(math.sqrt(2.0))  # NaN left out
+    assert a["status"] == "3 of 3 done" and a["wall_time"] == 300.0 and a["n_measured"] == 3
+    assert a["flow_pattern"] == "semi-mass" and a["bulk_density_sd"] == 0.0
+    assert b["status"] == "2 of 3 done" and b["n_measured"] == 2
+    assert b["flow_rate"] == pytest.approx(0.095) and b["flow_pattern"] == "semi-mass 1, mass 1"
+    assert combine_replicas(runs, 1) is runs
+
+
+def test_replicas_measurements_average_for_the_charts():
+    """mean_measurements: same-shaped arrays averaged; B's error bars the s.d. over the fills;
+    arrays that differ in shape (and text) the first fill's."""
+    from cfddem.silo_thesis import mean_measurements
+
+    def m(v, B, t):
+        return {"profiles": {"depth": {"vy": np.array([v, 2 * v]), "B": np.array([B, math.nan]),
+                                       "B_err": np.array([0.1, 0.1])}, "front": {"B": np.array([B, B])}},
+                "centreline_series": {"time": np.arange(t)}, "flow_pattern": "semi-mass"}
+
+    out = mean_measurements([m(1.0, 2.0, 3), m(3.0, 4.0, 3), m(5.0, 6.0, 4)])
+    np.testing.assert_allclose(out["profiles"]["depth"]["vy"], [3.0, 6.0], rtol=1e-12)
+    np.testing.assert_allclose(out["profiles"]["depth"]["B"][0], 4.0, rtol=1e-12)
+    assert math.isnan(out["profiles"]["depth"]["B"][1])
+    np.testing.assert_allclose(out["profiles"]["depth"]["B_err"][0], 2.0, rtol=1e-12)  # s.d. of 2, 4, 6
+    np.testing.assert_allclose(out["profiles"]["front"]["B_err"], [2.0, 2.0], rtol=1e-12)
+    np.testing.assert_array_equal(out["centreline_series"]["time"], np.arange(3))  # shapes differ: the first's
+    assert out["flow_pattern"] == "semi-mass"
+    one = m(1.0, 2.0, 3)
+    assert mean_measurements([one]) is one and mean_measurements([]) is None
+
+
+def test_replicated_study_tables_read_mean_plus_minus_sd(tmp_path):
+    import csv
+
+    from cfddem.silo_thesis import combine_replicas, write_study
+
+    runs = [_run_row("front/back mu 0.2", 0.2, f, "semi-mass") for f in (0.10, 0.11, 0.12)]
+    for t, s in zip(runs, (6, 7, 8)):
+        t["seed"] = s
+    table = combine_replicas(runs, 3)
+    files = write_study("front-back", table, tmp_path, ["note"], runs)
+    assert {f.name for f in files} >= {"front-back.csv", "front-back_runs.csv", "front-back.md"}
+    md = (tmp_path / "front-back.md").read_text()
+    assert "| front/back mu 0.2 | 0.11 ± 0.01 | 550 ± 0 | semi-mass |" in md
+    assert "3 of 3 done" in md
+    row, = csv.DictReader(open(tmp_path / "front-back.csv"))
+    assert float(row["flow_rate"]) == pytest.approx(0.11) and float(row["flow_rate_sd"]) == pytest.approx(0.01)
+    assert row["replicas"] == "3" and row["n_measured"] == "3"
+    each = list(csv.DictReader(open(tmp_path / "front-back_runs.csv")))
+    assert [r["seed"] for r in each] == ["6", "7", "8"]
+    assert [float(r["flow_rate"]) for r in each] == [0.10, 0.11, 0.12]
+
+
+def test_swept_chart_draws_the_replicas_error_bars(tmp_path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from cfddem.silo_thesis import swept_panel
+
+    fig, a = plt.subplots()
+    ts = [{"label": "a", "x": 0.2, "flow_rate": 0.11, "flow_rate_sd": 0.01},
+          {"label": "b", "x": 1.0, "flow_rate": 0.10, "flow_rate_sd": 0.002}]
+    per = [{"label": "p", "x": math.nan, "flow_rate": 0.12, "flow_rate_sd": 0.003}]
+    swept_panel(a, "front-back", {"walls": ts, "periodic": per}, {"a": "C0", "b": "C1", "p": "C2"}, "flow_rate",
+                1e3, "g/s", "flow", "t")
+    bars, = a.containers
+    seg = bars.lines[2][0].get_segments()
+    np.testing.assert_allclose([s[:, 1] for s in seg], [[100.0, 120.0], [98.0, 102.0]], rtol=1e-12)
+    lo, hi = a.get_ylim()
+    assert lo <= 98.0 and hi >= 123.0  # the bars and the periodic band fit on the axis
+    assert any("120 ± 3" in t.get_text() for t in a.get_legend().get_texts())
+    plt.close(fig)
