@@ -374,9 +374,20 @@ def write_study(study: str, table: list[dict], out: Path, notes: list[str], runs
 
 
 def _pm(t: dict, key: str, spec: str) -> str:
-    """``mean ± s.d.`` of a replicated number (the mean alone where the s.d. is not finite)."""
-    sd = t.get(f"{key}_sd", math.nan)
-    return f"{_fmt(t[key], spec)} ± {_fmt(sd, spec)}" if math.isfinite(sd) else _fmt(t[key], spec)
+    """``mean ± s.d.`` of a replicated number: the s.d. to two significant digits and the mean to
+    the same decimal place (``0.1133 ± 0.0020``, ``587 ± 30``); ``mean ± 0`` where the fills
+    agree to one digit more than ``spec`` shows; "(one fill)" where only one fill measured it."""
+    mean, sd = t[key], t.get(f"{key}_sd", math.nan)
+    if not (isinstance(mean, (int, float)) and math.isfinite(mean)):
+        return _fmt(mean, spec)
+    if not math.isfinite(sd):
+        return f"{_fmt(mean, spec)} (one fill)"
+    n = int(spec[spec.index(".") + 1:-2]) if "." in spec else 3
+    shown = n + 1 if spec.endswith("f}") else n - math.floor(math.log10(abs(mean))) if mean else n + 1
+    d = max(0, 1 - math.floor(math.log10(sd))) if sd > 0 else shown + 1
+    if d > shown:
+        return f"{_fmt(mean, spec)} ± 0"
+    return f"{mean:.{d}f} ± {sd:.{d}f}"
 
 
 def swept_panel(a, study: str, groups: dict, col: dict, key: str, scale: float, unit: str, ylabel: str,

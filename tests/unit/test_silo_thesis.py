@@ -326,7 +326,15 @@ def test_replicated_study_tables_read_mean_plus_minus_sd(tmp_path):
     files = write_study("front-back", table, tmp_path, ["note"], runs)
     assert {f.name for f in files} >= {"front-back.csv", "front-back_runs.csv", "front-back.md"}
     md = (tmp_path / "front-back.md").read_text()
-    assert "| front/back mu 0.2 | 0.11 ± 0.01 | 550 ± 0 | semi-mass |" in md
+    assert "| front/back mu 0.2 | 0.110 ± 0.010 | 550 ± 0 | semi-mass |" in md
+    from cfddem.silo_thesis import _pm
+
+    assert _pm({"v": 0.11327, "v_sd": 0.001955}, "v", "{:.4g}") == "0.1133 ± 0.0020"
+    assert _pm({"v": 586.7, "v_sd": 30.06}, "v", "{:.4g}") == "587 ± 30"
+    assert _pm({"v": 76.2, "v_sd": 1.4e-14}, "v", "{:.3g}") == "76.2 ± 0"
+    assert _pm({"v": 15.5, "v_sd": math.nan}, "v", "{:.3g}") == "15.5 (one fill)"
+    assert _pm({"v": 0.12492615, "v_sd": 1.3e-7}, "v", "{:.2f}") == "0.12 ± 0"
+    assert _pm({"v": 0.172, "v_sd": 0.017}, "v", "{:.2f}") == "0.172 ± 0.017"
     assert "3 of 3 done" in md
     row, = csv.DictReader(open(tmp_path / "front-back.csv"))
     assert float(row["flow_rate"]) == pytest.approx(0.11) and float(row["flow_rate_sd"]) == pytest.approx(0.01)
