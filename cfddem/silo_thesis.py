@@ -112,7 +112,7 @@ def _mean_sd(vals: list) -> tuple[float, float, int]:
 def combine_replicas(runs: list[dict], replicas: int) -> list[dict]:
     """One table row per variant from its ``replicas`` consecutive run rows: every number the
     mean over the replicas that have it, with ``<key>_sd`` its standard deviation (ddof 1);
-    ``n_measured`` the replicas with a flow rate; the flow patterns with their counts when they
+    ``<key>_n`` how many replicas have it, ``n_measured`` the replicas with a flow rate; the flow patterns with their counts when they
     differ; the wall times summed; ``m`` the replicas' measurements averaged (mean_measurements).
     With one replica the rows come back as they are."""
     if replicas == 1:
@@ -127,6 +127,7 @@ def combine_replicas(runs: list[dict], replicas: int) -> list[dict]:
         keys = [k for g in grp for k in g if k not in _NOT_AVERAGED]
         for k in dict.fromkeys(keys):
             t[k], t[f"{k}_sd"], n = _mean_sd([g.get(k, math.nan) for g in grp])
+            t[f"{k}_n"] = n
             if k == "flow_rate":
                 t["n_measured"] = n
         pats = [g["flow_pattern"] for g in grp if g["flow_pattern"]]
@@ -360,7 +361,8 @@ def write_study(study: str, table: list[dict], out: Path, notes: list[str], runs
         write_table(out / f"{study}_runs", rcols, runs, title + ", every run", notes)
         (out / f"{study}_runs.md").unlink()
         files.insert(1, out / f"{study}_runs.csv")
-        shown = [{c: _pm(t, c, f) if f else t[c] for c, _, f in cols} for t in table]
+        shown = [{c: (_pm(t, c, f) if f"{c}_sd" in t else _fmt(t[c], f)) if f else t[c] for c, _, f in cols}
+                 for t in table]  # (the wall time: the fills' sum)
         mcols = [(c, h, "") for c, h, _ in cols]
     else:
         write_table(out / study, cols[:-2] + extra + cols[-2:], table, title, notes)
@@ -376,12 +378,16 @@ def write_study(study: str, table: list[dict], out: Path, notes: list[str], runs
 def _pm(t: dict, key: str, spec: str) -> str:
     """``mean ± s.d.`` of a replicated number: the s.d. to two significant digits and the mean to
     the same decimal place (``0.1133 ± 0.0020``, ``587 ± 30``); ``mean ± 0`` where the fills
-    agree to one digit more than ``spec`` shows; "(one fill)" where only one fill measured it."""
+    agree to one digit more than ``spec`` shows; "(one fill)" where only one fill measured it,
+    "(k fills)" where k of more did (a B fit that is not meaningful in the others)."""
     mean, sd = t[key], t.get(f"{key}_sd", math.nan)
     if not (isinstance(mean, (int, float)) and math.isfinite(mean)):
         return _fmt(mean, spec)
     if not math.isfinite(sd):
         return f"{_fmt(mean, spec)} (one fill)"
+    n, of = t.get(f"{key}_n"), t.get("replicas")
+    if n is not None and of is not None and n < of:  # a mean over the fills that measured it
+        return f"{_pm(dict(t, replicas=None), key, spec)} ({n} fills)"
     n = int(spec[spec.index(".") + 1:-2]) if "." in spec else 3
     shown = n + 1 if spec.endswith("f}") else n - math.floor(math.log10(abs(mean))) if mean else n + 1
     d = max(0, 1 - math.floor(math.log10(sd))) if sd > 0 else shown + 1

@@ -285,6 +285,7 @@ def test_replicas_combine_into_mean_and_standard_deviation():
     assert a["flow_rate"] == pytest.approx(0.11, rel=1e-12)
     assert a["flow_rate_sd"] == pytest.approx(0.01, rel=1e-9)  # ddof 1
     assert a["B_10"] == pytest.approx(4.0) and a["B_10_sd"] == pytest.approx(math.sqrt(2.0))  # NaN left out
+    assert a["B_10_n"] == 2 and a["flow_rate_n"] == 3
     assert a["status"] == "3 of 3 done" and a["wall_time"] == 300.0 and a["n_measured"] == 3
     assert a["flow_pattern"] == "semi-mass" and a["bulk_density_sd"] == 0.0
     assert b["status"] == "2 of 3 done" and b["n_measured"] == 2
@@ -335,7 +336,9 @@ def test_replicated_study_tables_read_mean_plus_minus_sd(tmp_path):
     assert _pm({"v": 15.5, "v_sd": math.nan}, "v", "{:.3g}") == "15.5 (one fill)"
     assert _pm({"v": 0.12492615, "v_sd": 1.3e-7}, "v", "{:.2f}") == "0.12 ± 0"
     assert _pm({"v": 0.172, "v_sd": 0.017}, "v", "{:.2f}") == "0.172 ± 0.017"
-    assert "3 of 3 done" in md
+    assert _pm({"v": 20.4, "v_sd": 2.2, "v_n": 2, "replicas": 3}, "v", "{:.3g}") == "20.4 ± 2.2 (2 fills)"
+    assert _pm({"v": 20.4, "v_sd": 2.2, "v_n": 3, "replicas": 3}, "v", "{:.3g}") == "20.4 ± 2.2"
+    assert "| 3 of 3 done | 300 |" in md  # the wall time summed over the fills
     row, = csv.DictReader(open(tmp_path / "front-back.csv"))
     assert float(row["flow_rate"]) == pytest.approx(0.11) and float(row["flow_rate_sd"]) == pytest.approx(0.01)
     assert row["replicas"] == "3" and row["n_measured"] == "3"
