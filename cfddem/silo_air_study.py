@@ -45,6 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import CaseError
+from .measure.stats import mean_sd
 from .silo_prisms import _floats, _plt, _save
 
 CASE = Path(__file__).resolve().parent.parent / "cases" / "silo_air"
@@ -212,11 +213,6 @@ def fit_beverloo_c(rows: list[dict], k: float = BEVERLOO_K) -> dict:
     return {"C": C, "C_err": err, "k": k, "exponent": n, "n_runs": int(ok.sum())}
 
 
-def _stats(x) -> tuple[float, float, int]:
-    x = np.asarray([v for v in x if math.isfinite(v)], float)
-    return (float(x.mean()) if len(x) else math.nan, float(x.std(ddof=1)) if len(x) > 1 else math.nan, len(x))
-
-
 def diameter_table(runs: list[dict], fit: dict) -> list[dict]:
     """One row per diameter: means (std, count) of W with and without air, the ratio and its
     standard error (from the replicas' spreads, the runs not paired), W*, the Beverloo rate,
@@ -227,25 +223,25 @@ def diameter_table(runs: list[dict], fit: dict) -> list[dict]:
         rn = [r for r in runs if r["d"] == d and not r["gas"] and _flowed(r)]
         if not ra and not rn:
             continue  # nothing finished at this diameter (yet)
-        wa, sa, na = _stats([r["W"] for r in ra])
-        wn, sn, nn = _stats([r["W"] for r in rn])
+        wa, sa, na = mean_sd([r["W"] for r in ra])
+        wn, sn, nn = mean_sd([r["W"] for r in rn])
         ratio = wa / wn if wn > 0 else math.nan
         rel = [s / w / math.sqrt(n) for s, w, n in ((sa, wa, na), (sn, wn, nn)) if n > 1 and math.isfinite(s)]
         ratio_err = ratio * math.sqrt(sum(x * x for x in rel)) if len(rel) == 2 else math.nan
-        rho_b, _, _ = _stats([r["rho_b"] for r in rn + ra])
+        rho_b, _, _ = mean_sd([r["rho_b"] for r in rn + ra])
         r0 = (rn + ra)[0]
         eps = 1.0 - rho_b / r0["rho_p"]
         u_d = ergun_permeability(d, eps) * rho_b * r0["g"] / r0["mu"]
         bev = fit["C"] * rho_b * math.sqrt(r0["g"]) * r0["L"] * max(r0["b"] - fit["k"] * d, 0.0) ** 1.5
         row = {"d_mm": d * 1e3, "W_air": wa, "W_air_std": sa, "n_air": na, "W_noair": wn, "W_noair_std": sn,
-               "n_noair": nn, "ratio": ratio, "ratio_err": ratio_err, "Wstar_air": _stats(
-                   [dimensionless_rate(r) for r in ra])[0], "Wstar_noair": _stats([dimensionless_rate(r) for r in rn])[0],
+               "n_noair": nn, "ratio": ratio, "ratio_err": ratio_err, "Wstar_air": mean_sd(
+                   [dimensionless_rate(r) for r in ra])[0], "Wstar_noair": mean_sd([dimensionless_rate(r) for r in rn])[0],
                "W_beverloo": bev, "rho_b": rho_b, "darcy_ratio": u_d / math.sqrt(r0["g"] * r0["b"]),
-               "discharged": _stats([r["discharged_fraction"] for r in ra + rn])[0],
-               "wall_air": _stats([r["wall"] for r in ra])[0], "wall_noair": _stats([r["wall"] for r in rn])[0]}
+               "discharged": mean_sd([r["discharged_fraction"] for r in ra + rn])[0],
+               "wall_air": mean_sd([r["wall"] for r in ra])[0], "wall_noair": mean_sd([r["wall"] for r in rn])[0]}
         for k in ("air_force_ratio_r0.5", "air_force_ratio_r1", "air_force_ratio_r2", "drag_r0.5", "pressure_r0.5",
                   "weight_r0.5", "slot_air_ratio", "q_slot", "q_top", "q_particles"):
-            row[k] = _stats([r.get(k, math.nan) for r in ra])[0]
+            row[k] = mean_sd([r.get(k, math.nan) for r in ra])[0]
         row["top_air_ratio"] = -row["q_top"] / row["q_particles"] if row["q_particles"] > 0 else math.nan
         table.append(row)
     return table

@@ -48,6 +48,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import CaseError
+from .measure.stats import mean_sd
 from .silo_prisms import (PP, PW, _floats, _fmt, _plt, _save, add_study_arguments, load_study_case, run_study,
                           write_table)
 
@@ -101,14 +102,6 @@ def replicate(variants: list[dict], replicas: int, seed0: int) -> list[dict]:
 _NOT_AVERAGED = ("label", "group", "x", "status", "wall_time", "m", "flow_pattern", "replica", "seed")
 
 
-def _mean_sd(vals: list) -> tuple[float, float, int]:
-    """Mean, standard deviation (ddof 1; NaN below two values) and count of the finite values."""
-    a = np.array([v for v in vals if isinstance(v, (int, float)) and math.isfinite(v)], float)
-    if a.size == 0:
-        return math.nan, math.nan, 0
-    return float(a.mean()), float(a.std(ddof=1)) if a.size > 1 else math.nan, int(a.size)
-
-
 def combine_replicas(runs: list[dict], replicas: int) -> list[dict]:
     """One table row per variant from its ``replicas`` consecutive run rows: every number the
     mean over the replicas that have it, with ``<key>_sd`` its standard deviation (ddof 1);
@@ -126,7 +119,7 @@ def combine_replicas(runs: list[dict], replicas: int) -> list[dict]:
         t["wall_time"] = float(sum(g["wall_time"] for g in grp if math.isfinite(g["wall_time"])))
         keys = [k for g in grp for k in g if k not in _NOT_AVERAGED]
         for k in dict.fromkeys(keys):
-            t[k], t[f"{k}_sd"], n = _mean_sd([g.get(k, math.nan) for g in grp])
+            t[k], t[f"{k}_sd"], n = mean_sd([g.get(k, math.nan) for g in grp])
             t[f"{k}_n"] = n
             if k == "flow_rate":
                 t["n_measured"] = n
@@ -385,15 +378,13 @@ def _pm(t: dict, key: str, spec: str) -> str:
         return _fmt(mean, spec)
     if not math.isfinite(sd):
         return f"{_fmt(mean, spec)} (one fill)"
-    n, of = t.get(f"{key}_n"), t.get("replicas")
-    if n is not None and of is not None and n < of:  # a mean over the fills that measured it
-        return f"{_pm(dict(t, replicas=None), key, spec)} ({n} fills)"
-    n = int(spec[spec.index(".") + 1:-2]) if "." in spec else 3
-    shown = n + 1 if spec.endswith("f}") else n - math.floor(math.log10(abs(mean))) if mean else n + 1
+    digits = int(spec[spec.index(".") + 1:-2]) if "." in spec else 3
+    # the decimals the column shows, and one more
+    shown = digits + 1 if spec.endswith("f}") or not mean else digits - math.floor(math.log10(abs(mean)))
     d = max(0, 1 - math.floor(math.log10(sd))) if sd > 0 else shown + 1
-    if d > shown:
-        return f"{_fmt(mean, spec)} ± 0"
-    return f"{mean:.{d}f} ± {sd:.{d}f}"
+    text = f"{_fmt(mean, spec)} ± 0" if d > shown else f"{mean:.{d}f} ± {sd:.{d}f}"
+    n, of = t.get(f"{key}_n"), t.get("replicas")
+    return f"{text} ({n} fills)" if n is not None and of is not None and n < of else text  # the fills that have it
 
 
 def swept_panel(a, study: str, groups: dict, col: dict, key: str, scale: float, unit: str, ylabel: str,

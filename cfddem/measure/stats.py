@@ -3,8 +3,18 @@
 from __future__ import annotations
 
 import math
+import numbers
 
 import numpy as np
+
+
+def mean_sd(values) -> tuple[float, float, int]:
+    """Mean, standard deviation (ddof 1; NaN below two values) and count of the finite numbers
+    among ``values`` (replicas of one measurement; NaN, text and None are left out)."""
+    a = np.array([v for v in values if isinstance(v, numbers.Real) and math.isfinite(v)], float)
+    if a.size == 0:
+        return math.nan, math.nan, 0
+    return float(a.mean()), float(a.std(ddof=1)) if a.size > 1 else math.nan, int(a.size)
 
 
 def block_error(samples, n_blocks: int = 10) -> np.ndarray:

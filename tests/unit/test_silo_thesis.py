@@ -368,3 +368,12 @@ def test_swept_chart_draws_the_replicas_error_bars(tmp_path):
     assert lo <= 98.0 and hi >= 123.0  # the bars and the periodic band fit on the axis
     assert any("120 ± 3" in t.get_text() for t in a.get_legend().get_texts())
     plt.close(fig)
+
+
+def test_mean_sd_of_replicas_leaves_out_what_is_not_a_finite_number():
+    from cfddem.measure.stats import mean_sd
+
+    m, sd, n = mean_sd([1.0, np.float64(3.0), math.nan, None, "semi-mass", np.int64(5)])
+    assert (m, n) == (3.0, 3) and sd == pytest.approx(2.0, rel=1e-12)
+    assert mean_sd([4.0])[0] == 4.0 and math.isnan(mean_sd([4.0])[1])
+    assert mean_sd([math.nan])[2] == 0 and math.isnan(mean_sd([])[0])
