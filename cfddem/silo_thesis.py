@@ -5,6 +5,7 @@ docs/silo-thesis.md) on ``cases/silo_thesis_small``:
     python -m cfddem.silo_thesis friction    [--mu 0.15,0.57] [--mu-r 0,0.1,0.2] ...
     python -m cfddem.silo_thesis restitution [--values 1e-4,0.6,1] ...
     python -m cfddem.silo_thesis floor-drop  [--values 0,0.00025,0.0005,0.001,0.0019] ...
+    python -m cfddem.silo_thesis floor-speed [--values 0.001,0.005,0.025] [--depth 0.001] ...
     (each also takes --replicas N --case CASE --out DIR --set K=V ... --workers N --threads T)
 
 * ``front-back``: the friction of the front and back walls (``silo.front_back.mu``) over the
@@ -18,7 +19,11 @@ docs/silo-thesis.md) on ``cases/silo_thesis_small``:
   (``silo.floor_drop``, m; every variant with ``silo.gate = "settled"``, so that 0 is the same
   fill and gate without the drop); the front/back friction is the case's (``--set``).  Besides
   the charts below it draws ``<study>_mobilised.png``: the weight carried by each wall group,
-  the friction the walls carry and the vertical stress against Janssen's, against the depth.
+  the friction the walls carry and the vertical stress against Janssen's, against the depth;
+* ``floor-speed``: the speed of that settlement (``silo.floor_drop_speed``, m/s) at one depth
+  (``--depth``, m, default 1 mm), every variant with the settled gate; the same charts, against
+  the speed (log axis).  A slower drop takes longer: give ``time.end_time`` room for the slowest
+  (settled fill + depth / speed + ``silo.floor_drop_wait`` + the discharge).
 
 Each study is a sweep (:func:`cfddem.sweep.run_sweep`: Dask, one run folder per variant,
 finished runs reused) into ``--out`` (default ``CASE/<study>``).  ``--replicas N`` fills each
@@ -53,12 +58,15 @@ from .silo_prisms import (PP, PW, _floats, _fmt, _plt, _save, add_study_argument
                           write_table)
 
 CASE = Path(__file__).resolve().parent.parent / "cases" / "silo_thesis_small"
-STUDIES = ("front-back", "friction", "restitution", "floor-drop")
+STUDIES = ("front-back", "friction", "restitution", "floor-drop", "floor-speed")
 DEFAULTS = {"front-back": [0.0, 0.2, 0.3, 0.5, 0.75, 1.0], "mu": [0.15, 0.57], "mu_r": [0.0, 0.1, 0.2],
-            "restitution": [1e-4, 0.6, 1.0], "floor-drop": [0.0, 0.00025, 0.0005, 0.001, 0.0019]}
+            "restitution": [1e-4, 0.6, 1.0], "floor-drop": [0.0, 0.00025, 0.0005, 0.001, 0.0019],
+            "floor-speed": [0.001, 0.005, 0.025]}
+DROP_DEPTH = 0.001  # floor-speed: the default depth of the drop (m)
 
 
-def study_variants(study: str, values=None, periodic: bool = True, mu=None, mu_r=None) -> list[dict]:
+def study_variants(study: str, values=None, periodic: bool = True, mu=None, mu_r=None,
+                   depth: float = DROP_DEPTH) -> list[dict]:
     """The variants of a study: dicts with ``label`` (legend text), ``group`` (one line per group
     in the flow-rate chart), ``x`` (the swept value on that chart's axis; NaN for the periodic
     variant) and ``overrides`` (the case keys)."""
@@ -80,6 +88,10 @@ def study_variants(study: str, values=None, periodic: bool = True, mu=None, mu_r
         return [{"label": f"floor drop {1e3 * v:g} mm", "group": "floor drop", "x": 1e3 * float(v),
                  "overrides": {"silo.floor_drop": float(v), "silo.gate": "settled"}}
                 for v in (values if values is not None else DEFAULTS["floor-drop"])]
+    if study == "floor-speed":
+        return [{"label": f"drop at {1e3 * v:g} mm/s", "group": f"floor drop {1e3 * depth:g} mm", "x": 1e3 * float(v),
+                 "overrides": {"silo.floor_drop": float(depth), "silo.floor_drop_speed": float(v), "silo.gate": "settled"}}
+                for v in (values or DEFAULTS["floor-speed"])]
     raise CaseError("study", f"{study!r}: one of {', '.join(STUDIES)}")
 
 
@@ -168,7 +180,8 @@ def mean_measurements(ms: list[dict]):
 
 
 X_LABEL = {"front-back": "front/back wall friction mu", "friction": "rolling friction mu_r (particle-particle)",
-           "restitution": "restitution coefficient e", "floor-drop": "floor drop once settled (mm)"}
+           "restitution": "restitution coefficient e", "floor-drop": "floor drop once settled (mm)",
+           "floor-speed": "speed of the floor's descent (mm/s)"}
 
 
 def _num(v) -> float:
@@ -232,6 +245,7 @@ def read_variant(row: dict, variant: dict) -> dict:
                                       np.asarray(wl["load"], float).reshape(-1)))
     fd = s.get("floor_drop")
     out["floor_drop"] = 1e3 * _num(fd["depth"]) if fd is not None else 0.0
+    out["floor_drop_speed"] = 1e3 * _num(fd["speed"]) if fd is not None else math.nan
     return out
 
 
@@ -331,7 +345,7 @@ def write_study(study: str, table: list[dict], out: Path, notes: list[str], runs
              ("share_floor", "weight on the floor, lips, gate and other walls (%)", ""),
              ("janssen_low_K", "Janssen with the measured K_x, K_z (Pa)", ""),
              ("hydrostatic_low", "hydrostatic rho_b g (H - y) 0.1-0.2 H (Pa)", ""),
-             ("floor_drop", "floor drop (mm)", "")]
+             ("floor_drop", "floor drop (mm)", ""), ("floor_drop_speed", "floor drop speed (mm/s)", "")]
     extra += [(f"B_err_{h}", f"B error at {h} mm (mm)", "") for h in hs]
     extra += [(f"B_front_{h}", f"B front layer at {h} mm (mm)", "") for h in hs]
     for t in table:
@@ -406,7 +420,7 @@ def swept_panel(a, study: str, groups: dict, col: dict, key: str, scale: float, 
             a.errorbar(xs, ys, yerr=np.nan_to_num(es), fmt="o-", capsize=3, label=f"{g} (1 s.d. over replicas)")
         else:
             a.plot(xs, ys, "o-", label=g)
-    if study == "restitution":
+    if study in ("restitution", "floor-speed"):
         a.set_xscale("log")
     # values read as they are (no "+5.834e2" offset), on an axis at least 4 % of their size tall, so
     # that two nearly equal values do not look like a trend
@@ -523,13 +537,14 @@ def plot_study(study: str, table: list[dict], out: Path) -> list[Path]:
     files.append(_save(fig, out / f"{study}.png"))
     walls = plot_walls(study, table, col, out)
     files += [walls] if walls else []
-    if study == "floor-drop":
+    if study in ("floor-drop", "floor-speed"):
         files.append(plot_mobilised(study, table, out))
     return files
 
 
 def plot_mobilised(study: str, table: list[dict], out: Path) -> Path:
-    """``<study>_mobilised.png`` (the floor-drop study): against the depth of the drop, the weight
+    """``<study>_mobilised.png`` (the floor-drop and floor-speed studies): against the depth (the
+    speed, on a log axis) of the drop, the weight
     carried by each wall group, the friction the vertical walls carry, and the vertical stress
     0.1-0.2 H above the floor with Janssen's and the hydrostatic values."""
     plt = _plt()
@@ -564,6 +579,8 @@ def plot_mobilised(study: str, table: list[dict], out: Path) -> Path:
     ax[2].set_title("vertical stress at the gate opening", fontsize=9)
     for a in ax:
         a.set_xlabel(X_LABEL[study])
+        if study == "floor-speed":
+            a.set_xscale("log")
         a.grid(alpha=0.3)
         a.legend(fontsize=8)
     fig.suptitle(f"silo study '{study}': the floor's settlement and the walls", fontsize=11)
@@ -612,6 +629,14 @@ def plot_walls(study: str, table: list[dict], col: dict, out: Path) -> Path | No
     return _save(fig, out / f"{study}_walls.png")
 
 
+def _depth(text: str) -> float:
+    """``--depth``: one positive number (m); the case checks it against d / 2."""
+    v = _floats(text, "--depth")
+    if len(v) != 1 or not v[0] > 0.0:
+        raise CaseError("--depth", f"one depth in m above 0, got {text!r}")
+    return float(v[0])
+
+
 def _study(args) -> tuple[list, list[dict]]:
     """Run the study of the parsed ``args``: (files written, sweep rows)."""
     from .sweep import run_sweep
@@ -623,12 +648,15 @@ def _study(args) -> tuple[list, list[dict]]:
         raise CaseError("--no-periodic", "only for the front-back study")
     if args.study != "friction" and (args.mu or args.mu_r):
         raise CaseError("--mu", "--mu and --mu-r are for the friction study")
+    if args.study != "floor-speed" and args.depth is not None:
+        raise CaseError("--depth", "only for the floor-speed study (the floor-drop study sweeps the depth: --values)")
     if args.study == "friction" and args.values:
         raise CaseError("--values", "the friction study takes --mu and --mu-r")
     values = _floats(args.values, "--values") if args.values else None
     variants = study_variants(args.study, values, not args.no_periodic,
                               _floats(args.mu, "--mu") if args.mu else None,
-                              _floats(args.mu_r, "--mu-r") if args.mu_r else None)
+                              _floats(args.mu_r, "--mu-r") if args.mu_r else None,
+                              DROP_DEPTH if args.depth is None else _depth(args.depth))
     n = args.replicas
     variants = replicate(variants, n, int(base.particles.seed))
     out = Path(args.out).resolve() if args.out else Path(args.case).resolve() / args.study
@@ -654,7 +682,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m cfddem.silo_thesis", description=__doc__.split("\n\n")[0])
     ap.add_argument("study", choices=STUDIES)
     ap.add_argument("--values", help="front-back: wall friction values; restitution: e values; floor-drop: depths "
-                    "in m (comma-separated)")
+                    "in m; floor-speed: speeds in m/s (comma-separated)")
+    ap.add_argument("--depth", help="floor-speed: depth of the floor drop in m (default 0.001)")
     ap.add_argument("--no-periodic", action="store_true", help="front-back: leave out the periodic-depth variant")
     ap.add_argument("--mu", help="friction: particle-particle sliding friction values (default 0.15,0.57)")
     ap.add_argument("--mu-r", help="friction: particle-particle rolling friction values (default 0,0.1,0.2)")

@@ -258,3 +258,28 @@ def test_study_with_replicas_tabulates_each_fill_and_their_mean(root, tmp_path):
     assert (out / "front-back.png").stat().st_size > 1000
     assert sorted(d.name for d in out.iterdir() if d.is_dir()) == ["silo.front_back.mu=0.3",
                                                                    "silo.front_back.mu=0.3__particles.seed=7"]
+
+
+def test_floor_speed_study_drops_the_floor_at_each_speed(root, tmp_path):
+    """``python -m cfddem.silo_thesis floor-speed`` on the tiny bed: each variant lowers the floor
+    by --depth at its speed (the drop lasts depth / speed), and the CSV and the mobilised chart
+    carry the speed."""
+    out = tmp_path / "speed"
+    env = dict(os.environ, PYTHONPATH=str(root), MPLBACKEND="Agg")
+    p = subprocess.run([sys.executable, "-m", "cfddem.silo_thesis", "floor-speed", "--values", "0.005,0.02",
+                        "--depth", "0.0005", "--out", str(out), "--workers", "1", *TINY,
+                        "--set", "time.end_time=0.45", "--set", "silo.floor_drop_wait=0.05"],
+                       capture_output=True, text=True, env=env, cwd=root, timeout=300)
+    assert p.returncode == 0, p.stderr[-2000:]
+    rows = list(csv.DictReader(open(out / "floor-speed.csv")))
+    assert [r["label"] for r in rows] == ["drop at 5 mm/s", "drop at 20 mm/s"]
+    assert [float(r["floor_drop_speed"]) for r in rows] == pytest.approx([5.0, 20.0], rel=1e-12)
+    assert all(float(r["floor_drop"]) == pytest.approx(0.5, rel=1e-12) and r["status"] == "done" for r in rows)
+    for speed in (0.005, 0.02):
+        run = out / f"silo.floor_drop=0.0005__silo.floor_drop_speed={speed}__silo.gate=settled"
+        with h5py.File(run / "results.h5", "r") as f:
+            g = f["measurements/silo/floor_drop"]
+            lasted = float(g["end_time"][()]) - float(g["start_time"][()])
+            assert float(g["speed"][()]) == speed
+            assert lasted == pytest.approx(0.0005 / speed, abs=1.8e-5 * 1.01)  # to a time step
+    assert (out / "floor-speed_mobilised.png").stat().st_size > 1000

@@ -217,6 +217,33 @@ def test_floor_drop_study_variants_set_the_depth_and_the_settled_gate():
     assert "mm" in X_LABEL["floor-drop"]
 
 
+def test_floor_speed_study_variants_set_the_speed_at_one_depth():
+    from cfddem.silo_thesis import DEFAULTS, DROP_DEPTH, X_LABEL, study_variants
+
+    v = study_variants("floor-speed", [0.001, 0.025], depth=0.0005)
+    assert [x["overrides"] for x in v] == [{"silo.floor_drop": 0.0005, "silo.floor_drop_speed": s,
+                                            "silo.gate": "settled"} for s in (0.001, 0.025)]
+    assert [x["x"] for x in v] == pytest.approx([1.0, 25.0], rel=1e-12)  # the chart's axis in mm/s
+    assert [x["label"] for x in v] == ["drop at 1 mm/s", "drop at 25 mm/s"]
+    assert {x["group"] for x in v} == {"floor drop 0.5 mm"}
+    d = study_variants("floor-speed")
+    assert [x["overrides"]["silo.floor_drop_speed"] for x in d] == DEFAULTS["floor-speed"]
+    assert {x["overrides"]["silo.floor_drop"] for x in d} == {DROP_DEPTH} and DROP_DEPTH == 0.001
+    assert "mm/s" in X_LABEL["floor-speed"]
+
+
+@pytest.mark.parametrize("argv, key", [(["floor-drop", "--depth", "0.001"], "--depth"),
+                                       (["floor-speed", "--depth", "0"], "--depth"),
+                                       (["floor-speed", "--depth", "0.001,0.002"], "--depth")])
+def test_floor_speed_depth_is_checked_in_one_line(argv, key, tmp_path, capsys):
+    from cfddem.silo_thesis import main
+
+    assert main([*argv, "--out", str(tmp_path / "s")]) != 0
+    err = capsys.readouterr().err
+    assert key in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "s").exists()
+
+
 def test_mobilised_chart_draws_each_wall_group_against_the_depth(tmp_path, monkeypatch):
     """plot_mobilised: one line per wall group, its points the table's shares at the swept depths
     (in order of the depth, whatever the table's order)."""
