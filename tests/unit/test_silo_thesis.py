@@ -404,3 +404,28 @@ def test_mean_sd_of_replicas_leaves_out_what_is_not_a_finite_number():
     assert (m, n) == (3.0, 3) and sd == pytest.approx(2.0, rel=1e-12)
     assert mean_sd([4.0])[0] == 4.0 and math.isnan(mean_sd([4.0])[1])
     assert mean_sd([math.nan])[2] == 0 and math.isnan(mean_sd([])[0])
+
+
+def test_floor_speed_charts_put_the_swept_speeds_on_a_log_axis(tmp_path, monkeypatch):
+    """The floor-speed study's mobilised chart: log x axis, ticks at the speeds as plain numbers."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from cfddem.silo_thesis import plot_mobilised
+
+    row = {"share_front_back": 56.0, "share_sides": 10.0, "share_floor": 34.0, "mobilised_front_back": 0.32,
+           "mobilised_sides": 0.13, "stress_low": 230.0, "hydrostatic_low": 650.0, "janssen_low": 193.0,
+           "janssen_low_K": 95.0}
+    table = [dict(row, x=v) for v in (25.0, 1.0, 5.0)]
+    made = []
+    orig = plt.Figure.savefig
+    monkeypatch.setattr(plt.Figure, "savefig", lambda fig, *a, **k: (made.append(fig), orig(fig, *a, **k))[1])
+    path = plot_mobilised("floor-speed", table, tmp_path)
+    assert path.name == "floor-speed_mobilised.png" and path.stat().st_size > 1000
+    for a in made[0].axes:
+        assert a.get_xscale() == "log"
+        np.testing.assert_array_equal(a.get_xticks(), [1.0, 5.0, 25.0])
+        assert [t.get_text() for t in a.get_xticklabels()] == ["1", "5", "25"]
+        assert "mm/s" in a.get_xlabel()
