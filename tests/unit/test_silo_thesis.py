@@ -15,6 +15,24 @@ from cfddem.measure.silo import (VelocityField, centreline_velocity, fit_kinemat
                                  profile_measurements, rows_at_heights)
 
 
+@pytest.fixture
+def saved_figures(monkeypatch):
+    """The figures the code under test saves, in order (savefig still writes the file)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    made, orig = [], plt.Figure.savefig
+
+    def keep(fig, *a, **k):
+        made.append(fig)
+        return orig(fig, *a, **k)
+
+    monkeypatch.setattr(plt.Figure, "savefig", keep)
+    return made
+
+
 def test_B_fit_recovers_B_of_a_gaussian_profile():
     xc, z, B, v0 = 0.04, 0.03, 0.004, 0.12
     x = np.linspace(0.002, 0.078, 21)
@@ -244,12 +262,9 @@ def test_floor_speed_depth_is_checked_in_one_line(argv, key, tmp_path, capsys):
     assert not (tmp_path / "s").exists()
 
 
-def test_mobilised_chart_draws_each_wall_group_against_the_depth(tmp_path, monkeypatch):
+def test_mobilised_chart_draws_each_wall_group_against_the_depth(tmp_path, saved_figures):
     """plot_mobilised: one line per wall group, its points the table's shares at the swept depths
     (in order of the depth, whatever the table's order)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     from cfddem.silo_thesis import plot_mobilised
 
     table = [{"x": 1.0, "share_front_back": 36.0, "share_sides": 14.0, "share_floor": 50.0,
@@ -258,19 +273,9 @@ def test_mobilised_chart_draws_each_wall_group_against_the_depth(tmp_path, monke
              {"x": 0.0, "share_front_back": 5.0, "share_sides": 3.0, "share_floor": 92.0,
               "mobilised_front_back": 0.02, "mobilised_sides": 0.02, "stress_low": 605.0, "hydrostatic_low": 655.0,
               "janssen_low": 440.0, "janssen_low_K": math.nan}]
-    import matplotlib.pyplot as plt
-
-    made = []
-    orig = plt.Figure.savefig
-
-    def keep(fig, *a, **k):
-        made.append(fig)
-        return orig(fig, *a, **k)
-
-    monkeypatch.setattr(plt.Figure, "savefig", keep)
     path = plot_mobilised("floor-drop", table, tmp_path)
     assert path.name == "floor-drop_mobilised.png" and path.stat().st_size > 1000
-    ax = made[0].axes
+    ax = saved_figures[0].axes
     lines = {ln.get_label(): ln for ln in ax[0].get_lines()}
     np.testing.assert_array_equal(lines["front/back walls"].get_xdata(), [0.0, 1.0])
     np.testing.assert_array_equal(lines["front/back walls"].get_ydata(), [5.0, 36.0])
@@ -406,25 +411,17 @@ def test_mean_sd_of_replicas_leaves_out_what_is_not_a_finite_number():
     assert mean_sd([math.nan])[2] == 0 and math.isnan(mean_sd([])[0])
 
 
-def test_floor_speed_charts_put_the_swept_speeds_on_a_log_axis(tmp_path, monkeypatch):
+def test_floor_speed_charts_put_the_swept_speeds_on_a_log_axis(tmp_path, saved_figures):
     """The floor-speed study's mobilised chart: log x axis, ticks at the speeds as plain numbers."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     from cfddem.silo_thesis import plot_mobilised
 
     row = {"share_front_back": 56.0, "share_sides": 10.0, "share_floor": 34.0, "mobilised_front_back": 0.32,
            "mobilised_sides": 0.13, "stress_low": 230.0, "hydrostatic_low": 650.0, "janssen_low": 193.0,
            "janssen_low_K": 95.0}
     table = [dict(row, x=v) for v in (25.0, 1.0, 5.0)]
-    made = []
-    orig = plt.Figure.savefig
-    monkeypatch.setattr(plt.Figure, "savefig", lambda fig, *a, **k: (made.append(fig), orig(fig, *a, **k))[1])
     path = plot_mobilised("floor-speed", table, tmp_path)
     assert path.name == "floor-speed_mobilised.png" and path.stat().st_size > 1000
-    for a in made[0].axes:
+    for a in saved_figures[0].axes:
         assert a.get_xscale() == "log"
         np.testing.assert_array_equal(a.get_xticks(), [1.0, 5.0, 25.0])
         assert [t.get_text() for t in a.get_xticklabels()] == ["1", "5", "25"]
