@@ -420,10 +420,7 @@ def swept_panel(a, study: str, groups: dict, col: dict, key: str, scale: float, 
             a.errorbar(xs, ys, yerr=np.nan_to_num(es), fmt="o-", capsize=3, label=f"{g} (1 s.d. over replicas)")
         else:
             a.plot(xs, ys, "o-", label=g)
-    if study == "restitution":
-        a.set_xscale("log")
-    if study == "floor-speed":
-        _log_ticks_at(a, [t["x"] for ts in groups.values() for t in ts])
+    swept_axis(a, study, [t["x"] for ts in groups.values() for t in ts])
     # values read as they are (no "+5.834e2" offset), on an axis at least 4 % of their size tall, so
     # that two nearly equal values do not look like a trend
     a.ticklabel_format(axis="y", useOffset=False, style="plain")
@@ -581,16 +578,21 @@ def plot_mobilised(study: str, table: list[dict], out: Path) -> Path:
     ax[2].set_title("vertical stress at the gate opening", fontsize=9)
     for a in ax:
         a.set_xlabel(X_LABEL[study])
-        if study == "floor-speed":
-            _log_ticks_at(a, x)
+        swept_axis(a, study, x)
         a.grid(alpha=0.3)
         a.legend(fontsize=8)
     fig.suptitle(f"silo study '{study}': the floor's settlement and the walls", fontsize=11)
     return _save(fig, out / f"{study}_mobilised.png")
 
 
-def _log_ticks_at(a, xs) -> None:
-    """A log x axis with its ticks at the swept values, written as plain numbers (1, 5, 25)."""
+def swept_axis(a, study: str, xs) -> None:
+    """The x axis of a panel against the study's swept value: linear, but log for the
+    restitution (1e-4 to 1: matplotlib's decade ticks) and for the floor's speed (ticks at the
+    swept speeds, written as plain numbers: 1, 5, 25)."""
+    if study == "restitution":
+        a.set_xscale("log")
+    if study != "floor-speed":
+        return
     from matplotlib.ticker import NullFormatter, NullLocator
 
     xs = sorted({float(v) for v in xs if math.isfinite(v) and v > 0})
